@@ -1,0 +1,595 @@
+"""Algorithm 1 of Kumar et al. 2018 (dense NRSfM on the Grassmannian) as an estimator.
+
+``GrassmannNRSfM(**params).fit(W, init=None) -> NRSfMResult`` with ``W: (2F, P)``;
+``NRSfMResult.S: (3F, P)`` camera-frame shapes, ``R: (F, 3, 3)``, ``translation: (2F, 1)``,
+``groups: (P,)`` spatial labels, ``report: SolverReport``.
+
+Problem solved (Alg. 1 naming), on ``W`` centred per row and scaled to unit RMS::
+
+    min  1/2 ||W - R S||^2 + gamma ||S#||_* + lam1 ||T_s - T_s C_s||^2 + lam2 ||T_t - T_t C_t||^2
+         + lam3 ||C_s||_* + lam4 ||C_t||_*
+    s.t. S# = T1(S), Psi = xi(C, S), S = zeta(Psi, N)
+
+with S in the solver's world frame (``S_f = R_f^T S_cam_f``), ``S#: (3P, F)`` the frame-wise
+vectorisation of S, ``T_s``/``T_t`` the projection embeddings ``Psi Psi^T`` of the spatial
+(trajectory-group) and temporal (frame-block) Grassmann points.
+
+Implementation choices (where the paper is silent or vague), with what was measured
+---------------------------------------------------------------------------------
+Measurements: scratch dense faces from the Surrey face model (99 frames, smooth head rotation,
+6 expression blendshapes with smooth weights, barycentric densification), ground-truth R,
+per-frame e3D (metrics.e3d). See the report in the branch history for the tables.
+
+* Layout (sec. 3.1 of the research notes): ``S``, ``S#``, ``Y1`` share one ``(F, 3, P)``
+  array layout; ``T1`` is then a free reshape. The paper's column permutation ``T2`` is kept:
+  points are stored permuted so that each spatial group is a contiguous column slice (fast
+  group products); the permutation is undone on output.
+* Data term: soft (``1/2 ||W - RS||^2``), solved per frame in closed form:
+  ``(R_f^T P R_f + beta I)^{-1} = R_f^T diag(1/(1+beta), 1/(1+beta), 1/beta) R_f``
+  (P = diag(1, 1, 0)); no 3F x 3F inverse.
+* ``gamma`` is relative: the nuclear-norm weight used is ``gamma * sqrt(F * P)`` on unit-RMS W.
+* S# step: singular value thresholding of ``S - Y1/beta`` through its ``F x F`` Gram matrix
+  (``X' = V diag(max(s - tau, 0)/s) V^T X``). The temporal zeta (rank ``N_t`` per contiguous
+  frame block) is another ``F x F`` operator on the same rows, so S# step + zeta_t cost one
+  Gram and one ``F x F`` product. Temporal Grassmann bases are never formed: ``Psi_k^T Psi_l``
+  comes from blocks of the Gram matrix.
+* Omega: projection kernel ``||Psi_i^T Psi_j||_F^2`` + ``delta * tr(Omega)/K * I``
+  (``delta = 1e-8``). Only ``L L^T = Omega`` enters the C update, so no Cholesky is computed.
+* C: supplementary's row convention; closed form ``(2 lam Omega + beta J - Y)(2 lam Omega +
+  beta I)^{-1}``.
+* xi (spatial): every ``regroup_every`` iterations the LRR affinity ``A = |X X^T|^sigma_eps``
+  (``X`` = row-normalised ``U_c Sigma_c^{1/2}`` of C_s) decides which groups may exchange
+  trajectories (``A >= affinity_min``); each trajectory then moves to the allowed group with
+  the smallest subspace residual (one K-subspaces step), never shrinking a group below
+  ``N_s + 1`` points. Between regroupings the spatial bases follow S by ``power_steps``
+  warm-started block power iterations. xi (temporal): blocks stay contiguous; a boundary frame
+  moves to the neighbouring block when that block's subspace explains it better (gated by the
+  same affinity rule on C_t), blocks keep ``>= N_t + 1`` frames.
+* zeta: rank-N reconstruction per group, optionally relaxed:
+  ``S_k <- S_k - zeta_weight (I - Psi Psi^T) S_k`` (1 = the paper).
+* Order: the paper's (S, C_s, xi_s, zeta_s, J_s, S#, C_t, xi_t, zeta_t, J_t, Omega, Y, beta).
+* Stopping: the paper's rule ``maxgap < eps or beta > beta_max`` never fires as written (beta
+  is clamped to beta_max first); implemented as ``beta reached beta_max`` (with rho = 1.1 that
+  caps the run at 219 iterations, rho = 1.2 at 115), plus ``max_iter``.
+* Warm start with shapes: the first S# thresholding at ``gamma/beta0`` with beta0 = 1e-3 would
+  wipe out the given depth, so beta starts at ``warm_beta0`` instead (fewer iterations).
+* Output: the S iterate of the last iteration (with beta = beta_max it equals S# to ~1e-6).
+* Divergence: if the objective or a gap turns non-finite, the initial shapes are returned and
+  the report says so.
+"""
+import inspect
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import grassmann as gm
+from .measurement import (InvalidInputError, centre, from_frames, track_scale,
+                          validate_rotations, validate_shapes, validate_tracks)
+
+
+@dataclass
+class WarmStart:
+    """Initial values for :meth:`GrassmannNRSfM.fit`.
+
+    ``R: (F, 3, 3)`` rotations, ``S: (3F, P)`` camera-frame shapes (any translation, same units
+    as W), ``known: (F,)`` bool frames whose R and S are given (default: all), ``groups: (P,)``
+    spatial labels. Every field is optional.
+    """
+    R: np.ndarray = None
+    S: np.ndarray = None
+    known: np.ndarray = None
+    groups: np.ndarray = None
+
+
+@dataclass
+class SolverReport:
+    """What the solver did; every number refers to the run that produced it."""
+    iterations: int = 0
+    converged: bool = False
+    reason: str = ''
+    objective: list = field(default_factory=list)
+    gaps: list = field(default_factory=list)      # per iteration: (S#-T1(S), C_s-J_s, C_t-J_t)
+    seconds: dict = field(default_factory=dict)
+    K_rot: int = None
+    K_s: int = 0
+    K_t: int = 0
+    N_s: int = 0
+    N_t: int = 0
+    gamma: float = 0.0                           # nuclear-norm weight used (unit-RMS W)
+    regrouped_points: int = 0                    # total trajectory moves made by xi
+    reprojection_rms: float = float('nan')       # RMS of W - RS in W's units
+    reprojection_relative: float = float('nan')  # the same over the RMS of centred W
+    warm_started_frames: int = 0
+    fallback: str = None
+
+
+@dataclass
+class NRSfMResult:
+    """``S: (3F, P)`` camera frame, ``R: (F, 3, 3)``, ``translation: (2F, 1)``,
+    ``groups: (P,)`` spatial labels, ``blocks: (K_t + 1,)`` temporal block edges."""
+    S: np.ndarray
+    R: np.ndarray
+    translation: np.ndarray
+    groups: np.ndarray
+    blocks: np.ndarray
+    report: SolverReport
+
+
+def _auto_or_int(name, value, low=1):
+    if isinstance(value, str):
+        if value != 'auto':
+            raise InvalidInputError(f"{name} must be 'auto' or an integer; got {value!r}")
+        return value
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+        raise InvalidInputError(f"{name} must be 'auto' or an integer >= {low}; got {value!r}")
+    return int(value)
+
+
+def _positive(name, value, allow_zero=False):
+    ok = isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, bool)
+    if not ok or not np.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
+        bound = '>= 0' if allow_zero else '> 0'
+        raise InvalidInputError(f'{name} must be a finite number {bound}; got {value!r}')
+    return float(value)
+
+
+class _Timer:
+    def __init__(self):
+        self.seconds = {}
+
+    def add(self, phase, since):
+        now = time.perf_counter()
+        self.seconds[phase] = self.seconds.get(phase, 0.0) + now - since
+        return now
+
+
+class GrassmannNRSfM:
+    """Dense NRSfM on the Grassmannian (Kumar et al. CVPR 2018, Algorithm 1).
+
+    Parameters are documented in :attr:`parameter_specs`; they are stored unchanged by
+    ``__init__`` and validated by :meth:`fit`.
+    """
+
+    parameter_specs = {
+        'gamma': ('nuclear-norm weight on S#, relative: gamma * sqrt(F*P) on unit-RMS tracks',
+                  'float >= 0'),
+        'lambda1': ('weight of the spatial self-expression error ||T_s - T_s C_s||^2',
+                    'float >= 0'),
+        'lambda2': ('weight of the temporal self-expression error ||T_t - T_t C_t||^2',
+                    'float >= 0'),
+        'lambda3': ('nuclear-norm weight on the spatial coefficients C_s', 'float >= 0'),
+        'lambda4': ('nuclear-norm weight on the temporal coefficients C_t', 'float >= 0'),
+        'K_rot': ("rank used by the rotation step ('auto': chosen from the data)",
+                  "'auto' or int >= 1"),
+        'K_s': ("number of spatial groups (trajectory subspaces); 'auto' from P", "'auto' or int"),
+        'K_t': ("number of contiguous temporal blocks (shape subspaces); 'auto' from F",
+                "'auto' or int"),
+        'N_s': ("rank kept per spatial group by zeta; 'auto' from F", "'auto' or int"),
+        'N_t': ("rank kept per temporal block by zeta; 'auto' from the block length",
+                "'auto' or int"),
+        'sigma_eps': ('power of the LRR affinity |X X^T|^sigma_eps used by xi', 'float > 0'),
+        'affinity_min': ('groups exchange points only if their affinity is at least this',
+                         'float in [0, 1]'),
+        'regroup_every': ('iterations between xi regroupings (0: never regroup)', 'int >= 0'),
+        'zeta_weight': ('1 = the paper\'s rank-N projection; < 1 relaxes it', 'float in [0, 1]'),
+        'power_steps': ('warm-started power iterations per ADMM iteration for spatial bases',
+                        'int >= 1'),
+        'delta': ('Omega safeguard: adds delta * trace(Omega)/K * I', 'float >= 0'),
+        'rho': ('growth factor of the penalty beta per iteration', 'float > 1'),
+        'beta0': ('initial penalty beta', 'float > 0'),
+        'beta_max': ('largest penalty; the run stops when beta reaches it', 'float > beta0'),
+        'warm_beta0': ('initial beta when initial shapes are given (warm start)', 'float > 0'),
+        'eps': ('stop when every constraint gap (max abs) is below this', 'float >= 0'),
+        'max_iter': ('hard cap on ADMM iterations', 'int >= 1'),
+        'spatial': ('use the spatial Grassmann branch (C_s, xi_s, zeta_s)', 'bool'),
+        'temporal': ('use the temporal Grassmann branch (C_t, xi_t, zeta_t)', 'bool'),
+        'random_state': ('seed for k-means++ grouping (and the rotation step)', 'int or None'),
+    }
+
+    def __init__(self, gamma=1e-3, lambda1=1.0, lambda2=1.0, lambda3=0.1, lambda4=0.1,
+                 K_rot='auto', K_s='auto', K_t='auto', N_s='auto', N_t='auto',
+                 sigma_eps=4.0, affinity_min=0.5, regroup_every=10, zeta_weight=1.0,
+                 power_steps=1, delta=1e-8, rho=1.2, beta0=1e-3, beta_max=1e6,
+                 warm_beta0=1.0, eps=1e-12, max_iter=500, spatial=True, temporal=True,
+                 random_state=0):
+        self.gamma = gamma
+        self.lambda1 = lambda1
+        self.lambda2 = lambda2
+        self.lambda3 = lambda3
+        self.lambda4 = lambda4
+        self.K_rot = K_rot
+        self.K_s = K_s
+        self.K_t = K_t
+        self.N_s = N_s
+        self.N_t = N_t
+        self.sigma_eps = sigma_eps
+        self.affinity_min = affinity_min
+        self.regroup_every = regroup_every
+        self.zeta_weight = zeta_weight
+        self.power_steps = power_steps
+        self.delta = delta
+        self.rho = rho
+        self.beta0 = beta0
+        self.beta_max = beta_max
+        self.warm_beta0 = warm_beta0
+        self.eps = eps
+        self.max_iter = max_iter
+        self.spatial = spatial
+        self.temporal = temporal
+        self.random_state = random_state
+
+    # scikit-learn style introspection -------------------------------------------------------
+    @classmethod
+    def _param_names(cls):
+        return [p for p in inspect.signature(cls.__init__).parameters if p != 'self']
+
+    def get_params(self, deep=True):
+        return {name: getattr(self, name) for name in self._param_names()}
+
+    def set_params(self, **params):
+        for name, value in params.items():
+            if name not in self._param_names():
+                raise InvalidInputError(f'unknown parameter {name!r}')
+            setattr(self, name, value)
+        return self
+
+    def __repr__(self):
+        args = ', '.join(f'{k}={v!r}' for k, v in self.get_params().items())
+        return f'{type(self).__name__}({args})'
+
+    # validation ------------------------------------------------------------------------------
+    def _validated(self):
+        p = {}
+        for name in ('gamma', 'lambda1', 'lambda2', 'lambda3', 'lambda4', 'delta', 'eps'):
+            p[name] = _positive(name, getattr(self, name), allow_zero=True)
+        for name in ('sigma_eps', 'beta0', 'beta_max', 'warm_beta0'):
+            p[name] = _positive(name, getattr(self, name))
+        for name in ('affinity_min', 'zeta_weight'):
+            value = _positive(name, getattr(self, name), allow_zero=True)
+            if value > 1:
+                raise InvalidInputError(f'{name} must be in [0, 1]; got {value!r}')
+            p[name] = value
+        p['rho'] = _positive('rho', self.rho)
+        if p['rho'] <= 1:
+            raise InvalidInputError(f'rho must be > 1; got {self.rho!r}')
+        if p['beta_max'] < p['beta0']:
+            raise InvalidInputError(f'beta_max ({self.beta_max!r}) must be >= beta0')
+        for name, low in (('max_iter', 1), ('power_steps', 1), ('regroup_every', 0)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+                raise InvalidInputError(f'{name} must be an integer >= {low}; got {value!r}')
+            p[name] = int(value)
+        for name in ('K_s', 'K_t', 'N_s', 'N_t'):
+            p[name] = _auto_or_int(name, getattr(self, name))
+        K_rot = self.K_rot
+        p['K_rot'] = K_rot if K_rot == 'auto' else _auto_or_int('K_rot', K_rot)
+        for name in ('spatial', 'temporal'):
+            value = getattr(self, name)
+            if not isinstance(value, (bool, np.bool_)):
+                raise InvalidInputError(f'{name} must be True or False; got {value!r}')
+            p[name] = bool(value)
+        p['random_state'] = self.random_state
+        return p
+
+    @staticmethod
+    def _sizes(p, F, P, groups):
+        """Resolve 'auto' K_s, K_t, N_s, N_t from (F, P) (documented in the module docstring)."""
+        N_s = p['N_s'] if p['N_s'] != 'auto' else int(min(3 * F - 1, 9))
+        if groups is not None:
+            K_s = int(len(np.unique(groups)))
+        elif p['K_s'] != 'auto':
+            K_s = p['K_s']
+        else:
+            K_s = int(np.clip(P // (20 * (N_s + 1)), 1, 20))
+        K_s = max(1, min(K_s, P // (N_s + 1)))
+        K_t = p['K_t'] if p['K_t'] != 'auto' else int(np.clip(F // 10, 1, 10))
+        K_t = max(1, min(K_t, F))
+        N_t = p['N_t'] if p['N_t'] != 'auto' else max(1, (F // K_t) // 2)
+        return K_s, K_t, N_s, N_t
+
+    # the solver --------------------------------------------------------------------------------
+    def fit(self, W, init=None, progress=None):
+        """Reconstruct ``W: (2F, P)``. ``init``: optional :class:`WarmStart`; ``progress``:
+        optional ``callback(iteration, report)`` called after every iteration."""
+        t_start = time.perf_counter()
+        timer = _Timer()
+        p = self._validated()
+        W = validate_tracks(W, min_frames=3, min_points=4)
+        F, P = W.shape[0] // 2, W.shape[1]
+        init = init if init is not None else WarmStart()
+        if not isinstance(init, WarmStart):
+            raise InvalidInputError(f'init must be a WarmStart or None; got {type(init).__name__}')
+        known, groups = self._check_init(init, F, P)
+
+        Wc, translation = centre(W)
+        scale = track_scale(Wc)
+        Wn = Wc / scale
+        report = SolverReport()
+        t = time.perf_counter()
+        R, report.K_rot = self._rotations(Wn, init, known, p)
+        t = timer.add('rotation', t)
+
+        K_s, K_t, N_s, N_t = self._sizes(p, F, P, groups)
+        report.K_s, report.K_t, report.N_s, report.N_t = K_s, K_t, N_s, N_t
+        gamma = p['gamma'] * np.sqrt(F * P)
+        report.gamma = gamma
+        S0 = self._initial_shapes(Wn, R, init, known, scale)
+        report.warm_started_frames = int(known.sum()) if init.S is not None else 0
+        state = _State(Wn, R, S0, p, K_s, K_t, N_s, N_t, gamma, groups,
+                       warm=init.S is not None)
+        t = timer.add('initialisation', t)
+
+        reason, converged = 'max_iter reached', False
+        for it in range(p['max_iter']):
+            obj, gaps = state.iterate(it, timer)
+            report.iterations = it + 1
+            report.objective.append(obj)
+            report.gaps.append(gaps)
+            if not (np.isfinite(obj) and np.all(np.isfinite(gaps))):
+                state.fall_back(S0)
+                report.fallback = (f'non-finite objective/gap at iteration {it + 1}; '
+                                   'returned the initial shapes')
+                reason = 'diverged'
+                break
+            if progress is not None:
+                progress(it + 1, report)
+            if max(gaps) < p['eps']:
+                reason, converged = 'all constraint gaps below eps', True
+                break
+            if state.beta_reached_max:
+                reason, converged = 'beta reached beta_max', True
+                break
+        report.reason, report.converged = reason, converged
+        report.regrouped_points = state.moves
+
+        S_world = state.S_world_original_order()
+        S_cam = from_frames(R @ S_world) * scale
+        resid = Wc - from_frames(S_cam.reshape(F, 3, P)[:, :2, :])
+        report.reprojection_rms = float(np.sqrt(np.mean(resid ** 2)))
+        report.reprojection_relative = report.reprojection_rms / scale
+        timer.add('shape', t)
+        report.seconds = dict(timer.seconds, total=time.perf_counter() - t_start)
+        return NRSfMResult(S=S_cam, R=R, translation=translation,
+                           groups=state.labels_original_order(), blocks=state.t_edges.copy(),
+                           report=report)
+
+    @staticmethod
+    def _check_init(init, F, P):
+        known = np.ones(F, dtype=bool) if init.known is None else np.asarray(init.known)
+        if known.shape != (F,) or known.dtype != bool:
+            raise InvalidInputError(f'init.known must be a ({F},) bool array; got '
+                                    f'{known.shape} {known.dtype}')
+        groups = None
+        if init.groups is not None:
+            groups = np.asarray(init.groups)
+            if groups.shape != (P,) or groups.dtype.kind not in 'iu':
+                raise InvalidInputError(f'init.groups must be ({P},) integers; got '
+                                        f'{groups.shape} {groups.dtype}')
+            groups = np.unique(groups, return_inverse=True)[1].astype(np.int64)
+        if init.R is not None:
+            validate_rotations(init.R, F, name='init.R')
+        if init.S is not None:
+            validate_shapes(init.S, n_frames=F, n_points=P, name='init.S')
+        if (init.R is not None or init.S is not None) and not known.any():
+            raise InvalidInputError('init.known marks no frame as known')
+        return known, groups
+
+    @staticmethod
+    def _rotations(Wn, init, known, p):
+        """Rotations: given ones for known frames; the others estimated and aligned to them."""
+        if init.R is not None and known.all():
+            return np.array(init.R, dtype=np.float64), None
+        from .rotation import estimate_rotations
+        est = estimate_rotations(Wn, K=p['K_rot'])
+        R = np.array(est.R, dtype=np.float64)
+        if init.R is None:
+            return R, est.K
+        return align_rotations(R, np.asarray(init.R, dtype=np.float64), known), est.K
+
+    @staticmethod
+    def _initial_shapes(Wn, R, init, known, scale):
+        """World-frame initial shapes ``(F, 3, P)``: pinv(R) W, or the given camera-frame S
+        on known frames (others: x, y from W, depth of the nearest known frame)."""
+        F, P = R.shape[0], Wn.shape[1]
+        cam = np.zeros((F, 3, P))
+        cam[:, :2, :] = Wn.reshape(F, 2, P)
+        if init.S is not None:
+            given = np.asarray(init.S, dtype=np.float64).reshape(F, 3, P)
+            given = (given - given.mean(axis=2, keepdims=True)) / scale
+            idx = np.flatnonzero(known)
+            nearest = idx[np.abs(np.arange(F)[:, None] - idx[None, :]).argmin(axis=1)]
+            cam[:, 2, :] = given[nearest, 2, :]
+            cam[known] = given[known]
+        return R.transpose(0, 2, 1) @ cam
+
+
+def align_rotations(R_est, R_known, known):
+    """Align estimated rotations ``(F, 3, 3)`` to given ones on the ``known`` frames.
+
+    Finds the world rotation Q (and whether to use the orthographic depth-flip twin
+    ``D R D``, D = diag(1, 1, -1)) minimising ``sum_known ||R_est_f Q - R_known_f||^2``; returns
+    the aligned estimates with the known frames replaced by the given rotations.
+    """
+    D = np.diag([1.0, 1.0, -1.0])
+    best, best_err = None, np.inf
+    for cand in (R_est, D @ R_est @ D):
+        M = np.einsum('fji,fjk->ik', cand[known], R_known[known])
+        U, _, Vt = np.linalg.svd(M)
+        Q = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+        err = np.linalg.norm(cand[known] @ Q - R_known[known])
+        if err < best_err:
+            best, best_err = cand @ Q, err
+    best[known] = R_known[known]
+    return best
+
+
+class _State:
+    """ADMM variables of Algorithm 1 and one iteration. Arrays ``(F, 3, P)`` are world-frame
+    and column-permuted so that each spatial group is a contiguous slice."""
+
+    def __init__(self, Wn, R, S0, p, K_s, K_t, N_s, N_t, gamma, groups, warm):
+        F, P = R.shape[0], Wn.shape[1]
+        self.F, self.P, self.p, self.R = F, P, p, R
+        self.K_s, self.K_t, self.N_s, self.N_t, self.gamma = K_s, K_t, N_s, N_t, gamma
+        self.beta = p['warm_beta0'] if warm else p['beta0']
+        self.beta_reached_max = False
+        self.moves = 0
+        labels = groups if groups is not None else (
+            gm.initial_groups(S0.reshape(3 * F, P), K_s, p['random_state'])
+            if p['spatial'] else np.zeros(P, dtype=np.int64))
+        self.K_s = K_s = int(labels.max()) + 1
+        self.order = np.argsort(labels, kind='stable')
+        self.labels = labels[self.order]
+        self.s_edges = np.searchsorted(self.labels, np.arange(K_s + 1))
+        self.W = np.ascontiguousarray(Wn.reshape(F, 2, P)[:, :, self.order])
+        self.S = np.ascontiguousarray(S0[:, :, self.order])
+        self.Ssh = self.S.copy()
+        self.Y1 = np.zeros_like(self.S)
+        self.s_bases = self._spatial_bases_exact()
+        self.t_edges = gm.contiguous_blocks(F, K_t)
+        X = self.Ssh.reshape(F, -1)
+        self.G = X @ X.T
+        self.t_bases = gm.block_bases(self.G, self.t_edges, N_t)
+        self.C_s = np.zeros((K_s, K_s))
+        self.J_s, self.Y2 = np.zeros_like(self.C_s), np.zeros_like(self.C_s)
+        self.C_t = np.zeros((K_t, K_t))
+        self.J_t, self.Y3 = np.zeros_like(self.C_t), np.zeros_like(self.C_t)
+        self.Omega_s = self._omega_s()
+        self.Omega_t = gm.projection_kernel(gm.block_cross(self.G, self.t_edges, self.t_bases),
+                                            [v.shape[1] for v, _ in self.t_bases],
+                                            p['delta'])
+
+    # spatial Grassmann points ------------------------------------------------------------------
+    def _group(self, k):
+        return self.S.reshape(3 * self.F, self.P)[:, self.s_edges[k]:self.s_edges[k + 1]]
+
+    def _spatial_bases_exact(self):
+        return [gm.top_subspace(self._group(k), self.N_s)[0] for k in range(self.K_s)]
+
+    def _omega_s(self):
+        stacked = np.concatenate(self.s_bases, axis=1)
+        return gm.projection_kernel(stacked.T @ stacked, [b.shape[1] for b in self.s_bases],
+                                    self.p['delta'])
+
+    def _regroup_spatial(self):
+        p = self.p
+        A = gm.lrr_affinity(self.C_s, p['sigma_eps'])
+        S2 = self.S.reshape(3 * self.F, self.P)
+        new = gm.reassign_by_residual(S2, self.labels, self.s_bases, A, p['affinity_min'],
+                                      self.N_s + 1)
+        moved = int((new != self.labels).sum())
+        if moved == 0:
+            return
+        self.moves += moved
+        perm = np.argsort(new, kind='stable')
+        self.labels = new[perm]
+        self.order = self.order[perm]
+        self.s_edges = np.searchsorted(self.labels, np.arange(self.K_s + 1))
+        for name in ('W', 'S', 'Ssh', 'Y1'):
+            setattr(self, name, np.ascontiguousarray(getattr(self, name)[:, :, perm]))
+        self.s_bases = self._spatial_bases_exact()
+
+    # one iteration -------------------------------------------------------------------------
+    def iterate(self, it, timer):
+        p, beta, F, P = self.p, self.beta, self.F, self.P
+        t = time.perf_counter()
+        # S update: (R^T R + beta I) S = R^T W + beta S# + Y1, per frame in closed form
+        cam = self.R @ (beta * self.Ssh + self.Y1)
+        cam[:, :2, :] += self.W
+        cam[:, :2, :] /= 1.0 + beta
+        cam[:, 2, :] /= beta
+        self.S = self.R.transpose(0, 2, 1) @ cam
+        t = timer.add('s_update', t)
+
+        if p['spatial']:
+            self.C_s = gm.c_update(self.Omega_s, self.J_s, self.Y2, p['lambda1'], beta)
+            if p['regroup_every'] and self.K_s > 1 and (it + 1) % p['regroup_every'] == 0:
+                self._regroup_spatial()
+            else:
+                self.s_bases = [gm.subspace_iteration(self._group(k), b, p['power_steps'])
+                                if self._group(k).shape[1] > self.N_s else b
+                                for k, b in enumerate(self.s_bases)]
+            gm.zeta(self.S.reshape(3 * F, P), self.s_edges, self.N_s, p['zeta_weight'],
+                    self.s_bases)
+            self.J_s, nuc_js = gm.singular_value_threshold(self.C_s + self.Y2 / beta,
+                                                           p['lambda3'] / beta)
+        t = timer.add('spatial', t)
+
+        # S# update: SVT of T1(S) - Y1/beta via the F x F Gram matrix, then zeta_t
+        X = (self.S - self.Y1 / beta).reshape(F, 3 * P)
+        G = X @ X.T
+        vals, vecs = np.linalg.eigh(G)
+        sv = np.sqrt(np.maximum(vals, 0.0))
+        shrink = np.where(sv > 0, np.maximum(sv - self.gamma / beta, 0.0) / np.where(
+            sv > 0, sv, 1.0), 0.0)
+        M = (vecs * shrink) @ vecs.T
+        G1 = M @ G @ M
+        t = timer.add('svt', t)
+        op = M
+        if p['temporal']:
+            self.C_t = gm.c_update(self.Omega_t, self.J_t, self.Y3, p['lambda2'], beta)
+            bases = gm.block_bases(G1, self.t_edges, self.N_t)
+            if p['regroup_every'] and self.K_t > 1 and (it + 1) % p['regroup_every'] == 0:
+                A = gm.lrr_affinity(self.C_t, p['sigma_eps'])
+                edges = gm.move_block_boundaries(G1, self.t_edges, bases, A,
+                                                 p['affinity_min'], self.N_t + 1)
+                if not np.array_equal(edges, self.t_edges):
+                    self.t_edges = edges
+                    bases = gm.block_bases(G1, edges, self.N_t)
+            B = np.eye(F)
+            for k, (v, _) in enumerate(bases):
+                r = slice(self.t_edges[k], self.t_edges[k + 1])
+                if v.shape[1] < r.stop - r.start:
+                    B[r, r] -= p['zeta_weight'] * (np.eye(r.stop - r.start) - v @ v.T)
+            op = B @ M
+            G1 = B @ G1 @ B.T
+            self.t_bases = gm.block_bases(G1, self.t_edges, self.N_t)
+            self.J_t, nuc_jt = gm.singular_value_threshold(self.C_t + self.Y3 / beta,
+                                                           p['lambda4'] / beta)
+        self.Ssh = (op @ X).reshape(F, 3, P)
+        self.G = G1
+        t = timer.add('temporal', t)
+
+        # Omega from the new Grassmann points
+        obj = 0.0
+        if p['spatial']:
+            self.Omega_s = self._omega_s()
+            obj += p['lambda1'] * gm.embedding_error(self.C_s, self.Omega_s) + p['lambda3'] * nuc_js
+        if p['temporal']:
+            self.Omega_t = gm.projection_kernel(
+                gm.block_cross(G1, self.t_edges, self.t_bases),
+                [v.shape[1] for v, _ in self.t_bases], p['delta'])
+            obj += p['lambda2'] * gm.embedding_error(self.C_t, self.Omega_t) + p['lambda4'] * nuc_jt
+
+        # multipliers, penalty, objective and gaps
+        diff = self.Ssh - self.S
+        self.Y1 += beta * diff
+        gap_s = gap_t = 0.0
+        if p['spatial']:
+            self.Y2 += beta * (self.C_s - self.J_s)
+            gap_s = float(np.abs(self.C_s - self.J_s).max())
+        if p['temporal']:
+            self.Y3 += beta * (self.C_t - self.J_t)
+            gap_t = float(np.abs(self.C_t - self.J_t).max())
+        gap_sh = float(np.abs(diff).max())
+        proj = np.einsum('fij,fjp->fip', self.R[:, :2, :], self.S)
+        obj += 0.5 * float(np.sum((self.W - proj) ** 2))
+        obj += self.gamma * float(np.sqrt(np.maximum(np.linalg.eigvalsh(G1), 0.0)).sum())
+        self.beta_reached_max = beta >= p['beta_max']
+        self.beta = min(p['rho'] * beta, p['beta_max'])
+        timer.add('multipliers', t)
+        return obj, (gap_sh, gap_s, gap_t)
+
+    def fall_back(self, S0):
+        self.S = np.ascontiguousarray(S0[:, :, self.order])
+
+    def S_world_original_order(self):
+        out = np.empty_like(self.S)
+        out[:, :, self.order] = self.S
+        return out
+
+    def labels_original_order(self):
+        out = np.empty_like(self.labels)
+        out[self.order] = self.labels
+        return out
