@@ -5,6 +5,8 @@ shapes, ``R: (F, 3, 3)`` world-to-camera rotations.
 """
 from .measurement import InvalidInputError, centre, validate_tracks
 from .metrics import e3d, e3d_akhter, procrustes_align, rotation_error
+from .admm import GrassmannNRSfM, NRSfMResult, SolverReport, WarmStart
 
 __all__ = ['InvalidInputError', 'centre', 'validate_tracks', 'e3d', 'e3d_akhter',
-           'procrustes_align', 'rotation_error']
+           'procrustes_align', 'rotation_error', 'GrassmannNRSfM', 'NRSfMResult',
+           'SolverReport', 'WarmStart']

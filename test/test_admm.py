@@ -1,0 +1,203 @@
+import tracemalloc
+
+import numpy as np
+import pytest
+from conftest import data_root
+
+from grass_nrsfm_ros.nrsfm import GrassmannNRSfM, InvalidInputError, WarmStart, e3d
+from grass_nrsfm_ros.nrsfm.admm import align_rotations
+
+
+def smooth_rotations(F, rng, amplitude=0.5):
+    """``(F, 3, 3)`` rotations turning smoothly about all three axes."""
+    t = np.linspace(0, 1, F)
+    angles = amplitude * np.sin(2 * np.pi * rng.uniform(0.5, 1.5, 3)[:, None] * t
+                                + rng.uniform(0, 2 * np.pi, 3)[:, None])
+    out = []
+    for a, b, c in angles.T:
+        Rx = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+        Ry = np.array([[np.cos(b), 0, np.sin(b)], [0, 1, 0], [-np.sin(b), 0, np.cos(b)]])
+        Rz = np.array([[np.cos(c), -np.sin(c), 0], [np.sin(c), np.cos(c), 0], [0, 0, 1]])
+        out.append(Rz @ Ry @ Rx)
+    return np.array(out)
+
+
+def deforming_sheet(F=30, P=600, seed=0, noise=0.0):
+    """Dense smooth surface bending with three smooth modes: ``(W, S_camera, R)``."""
+    rng = np.random.default_rng(seed)
+    u, v = rng.uniform(-1, 1, (2, P))
+    base = np.stack([u, v, 0.8 * (u ** 2 + v ** 2) + 0.3 * np.sin(2 * u) * np.cos(v)])
+    modes = np.stack([np.stack([0 * u, 0 * v, u ** 2 - v ** 2]),
+                      np.stack([0.2 * v, -0.2 * u, np.sin(3 * u)]),
+                      np.stack([0 * u, 0.1 * u * v, np.cos(2 * v) * u])])
+    t = np.linspace(0, 1, F)
+    weights = 0.3 * np.sin(2 * np.pi * np.array([0.7, 1.1, 1.6])[:, None] * t + [[0], [1], [2]])
+    world = base[None] + np.einsum('mf,mcp->fcp', weights, modes)
+    R = smooth_rotations(F, rng, amplitude=1.0)
+    cam = R @ world + rng.normal(size=(F, 3, 1))             # plus a translation per frame
+    W = cam[:, :2, :].reshape(2 * F, P)
+    if noise:
+        W = W + noise * np.abs(W).max() * rng.normal(size=W.shape)
+    return W, cam.reshape(3 * F, P), R
+
+
+def dense_face(F=30, P=1500, seed=0):
+    """Dense deforming face from the Surrey face model (skips without the data):
+    identity + 6 expression blendshapes with smooth weights in [0, 1.5], barycentric samples
+    on the mesh, smooth head rotation (yaw 30, pitch 20, roll 10 degrees). ``(W, S, R)``."""
+    root = data_root()
+    if root is None or not (root / 'sfm_face' / 'sfm_face.npz').is_file():
+        pytest.skip('sfm_face model not found (set GRASS_NRSFM_DATA)')
+    rng = np.random.default_rng(seed)
+    with np.load(root / 'sfm_face' / 'sfm_face.npz') as model:
+        verts, tri, expr = model['mean'], model['triangles'], model['expressions']
+    t = np.linspace(0, 1, F)
+    w = 0.75 + 0.75 * np.sin(2 * np.pi * rng.uniform(0.5, 2, (6, 1)) * t
+                             + rng.uniform(0, 2 * np.pi, (6, 1)))
+    frames = verts[None] + np.einsum('ef,evc->fvc', w, expr)           # (F, V, 3)
+    corners = tri[rng.integers(len(tri), size=P)]
+    bary = rng.dirichlet(np.ones(3), size=P)
+    points = np.einsum('pk,fpkc->fcp', bary, frames[:, corners])      # (F, 3, P)
+    points -= points.mean(axis=(0, 2), keepdims=True)
+    angles = np.radians([30, 20, 10])[:, None] * np.sin(
+        2 * np.pi * rng.uniform(0.5, 1.5, (3, 1)) * t + rng.uniform(0, 2 * np.pi, (3, 1)))
+    R = []
+    for yaw, pitch, roll in angles.T:
+        Ry = np.array([[np.cos(yaw), 0, np.sin(yaw)], [0, 1, 0], [-np.sin(yaw), 0, np.cos(yaw)]])
+        Rx = np.array([[1, 0, 0], [0, np.cos(pitch), -np.sin(pitch)],
+                       [0, np.sin(pitch), np.cos(pitch)]])
+        Rz = np.array([[np.cos(roll), -np.sin(roll), 0], [np.sin(roll), np.cos(roll), 0],
+                       [0, 0, 1]])
+        R.append(Ry @ Rx @ Rz)
+    R = np.array(R)
+    cam = R @ points
+    return cam[:, :2].reshape(2 * F, P), cam.reshape(3 * F, P), R
+
+
+def rigid_with_rotations(W, R):
+    """Best single world shape for known rotations (least squares), in camera frames."""
+    F, P = R.shape[0], W.shape[1]
+    Wc = (W - W.mean(axis=1, keepdims=True)).reshape(F, 2, P)
+    A = np.einsum('fki,fkj->ij', R[:, :2], R[:, :2])
+    b = np.einsum('fki,fkp->ip', R[:, :2], Wc)
+    shape = np.linalg.solve(A, b)
+    return (R @ shape).reshape(3 * F, P)
+
+
+def test_fit_beats_rigid_reconstruction_with_true_rotations():
+    W, S, R = dense_face()
+    res = GrassmannNRSfM().fit(W, init=WarmStart(R=R))
+    rigid = e3d(rigid_with_rotations(W, R), S)
+    err = e3d(res.S, S)
+    assert err < 0.6 * rigid, (err, rigid)
+    assert res.report.converged and res.report.reason == 'beta reached beta_max'
+    # outputs in the caller's column order and units: x, y reproduce the centred tracks
+    Wc = W - res.translation
+    xy = res.S.reshape(-1, 3, W.shape[1])[:, :2].reshape(W.shape)
+    assert np.abs(xy - Wc).max() < 0.02 * np.abs(Wc).max()
+    assert np.allclose(res.R, R)
+    assert res.groups.shape == (W.shape[1],) and res.groups.max() + 1 == res.report.K_s
+
+
+def test_admm_gaps_shrink_and_report_is_complete():
+    W, S, R = deforming_sheet(F=20, P=300, seed=1)
+    seen = []
+    res = GrassmannNRSfM().fit(W, init=WarmStart(R=R), progress=lambda i, rep: seen.append(i))
+    rep = res.report
+    gaps = np.array(rep.gaps)
+    assert gaps.shape == (rep.iterations, 3)
+    assert seen == list(range(1, rep.iterations + 1))
+    assert len(rep.objective) == rep.iterations and np.all(np.isfinite(rep.objective))
+    early, late = gaps[:10].max(axis=0), gaps[-10:].max(axis=0)
+    assert late[0] < 1e-3 * early[0]                        # S# = T1(S)
+    assert late[1] < 1e-3 * max(early[1], 1e-12) + 1e-9     # C_s = J_s
+    assert late[2] < 1e-3 * max(early[2], 1e-12) + 1e-9     # C_t = J_t
+    for phase in ('rotation', 's_update', 'spatial', 'svt', 'temporal', 'total'):
+        assert phase in rep.seconds
+    assert rep.reprojection_relative < 0.02
+    assert min(rep.K_s, rep.K_t, rep.N_s, rep.N_t) >= 1
+
+
+@pytest.mark.parametrize('spatial,temporal', [(False, False), (True, False), (False, True)])
+def test_ablations_run_and_reconstruct(spatial, temporal):
+    W, S, R = dense_face(F=20, P=800, seed=2)
+    res = GrassmannNRSfM(spatial=spatial, temporal=temporal).fit(W, init=WarmStart(R=R))
+    assert e3d(res.S, S) < 0.6 * e3d(rigid_with_rotations(W, R), S)
+
+
+def test_warm_start_with_true_shapes_converges_in_fewer_iterations():
+    W, S, R = dense_face(F=20, P=500, seed=3)
+    cold = GrassmannNRSfM().fit(W, init=WarmStart(R=R))
+    warm = GrassmannNRSfM().fit(W, init=WarmStart(R=R, S=S, groups=cold.groups))
+    assert warm.report.iterations < cold.report.iterations
+    assert warm.report.warm_started_frames == 20
+    assert e3d(warm.S, S) <= e3d(cold.S, S)
+    assert np.array_equal(np.unique(warm.groups), np.unique(cold.groups))
+
+
+def test_align_rotations_recovers_world_rotation_and_flip():
+    rng = np.random.default_rng(4)
+    R = smooth_rotations(10, rng)
+    Q = smooth_rotations(1, rng, amplitude=2.0)[0]
+    D = np.diag([1.0, 1.0, -1.0])
+    est = D @ (R @ Q.T) @ D                                  # other world frame, depth-flipped
+    known = np.arange(10) < 6
+    aligned = align_rotations(est, R, known)
+    assert np.allclose(aligned, R, atol=1e-10)
+
+
+def test_no_p_by_p_allocation():
+    F, P = 4, 20000                                          # P x P float64 would be 3.2 GB
+    W, S, R = deforming_sheet(F=F, P=P, seed=5)
+    tracemalloc.start()
+    try:
+        res = GrassmannNRSfM(K_s=4, max_iter=30).fit(W, init=WarmStart(R=R))
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert res.S.shape == (3 * F, P)
+    assert peak < 100e6, peak                                # ~ a few copies of (3F, P)
+
+
+@pytest.mark.parametrize('W,needle', [
+    (np.full((6, 10), np.nan), 'non-finite'),
+    (np.ones((4, 10)), 'frames'),
+    (np.ones((7, 10)), 'even number of rows'),
+    (np.ones((6, 3)), 'points'),
+    (np.ones(12), '2-D'),
+])
+def test_invalid_tracks_raise_clear_errors(W, needle):
+    with pytest.raises(InvalidInputError, match=needle):
+        GrassmannNRSfM().fit(W, init=WarmStart(R=np.tile(np.eye(3), (3, 1, 1))))
+
+
+@pytest.mark.parametrize('params,needle', [
+    (dict(rho=1.0), 'rho'), (dict(gamma=-1.0), 'gamma'), (dict(K_s='many'), 'K_s'),
+    (dict(N_t=0), 'N_t'), (dict(zeta_weight=2.0), 'zeta_weight'), (dict(spatial='yes'), 'spatial'),
+    (dict(max_iter=0), 'max_iter'), (dict(beta_max=1e-6), 'beta_max'),
+])
+def test_invalid_parameters_raise_in_fit(params, needle):
+    est = GrassmannNRSfM(**params)                           # stored unchanged
+    assert all(getattr(est, k) == v for k, v in params.items())
+    W, _, R = deforming_sheet(F=5, P=50)
+    with pytest.raises(InvalidInputError, match=needle):
+        est.fit(W, init=WarmStart(R=R))
+
+
+def test_invalid_warm_start_raises():
+    W, S, R = deforming_sheet(F=5, P=50)
+    with pytest.raises(InvalidInputError, match='init.S'):
+        GrassmannNRSfM().fit(W, init=WarmStart(R=R, S=S[:, :10]))
+    with pytest.raises(InvalidInputError, match='init.R'):
+        GrassmannNRSfM().fit(W, init=WarmStart(R=R * 2))
+    with pytest.raises(InvalidInputError, match='init.known'):
+        GrassmannNRSfM().fit(W, init=WarmStart(R=R, known=np.ones(3, bool)))
+    with pytest.raises(InvalidInputError, match='init.groups'):
+        GrassmannNRSfM().fit(W, init=WarmStart(R=R, groups=np.zeros(7, int)))
+
+
+def test_parameter_specs_document_every_parameter():
+    names = set(GrassmannNRSfM().get_params())
+    assert names == set(GrassmannNRSfM.parameter_specs)
+    assert all(len(v) == 2 and all(isinstance(x, str) and x for x in v)
+               for v in GrassmannNRSfM.parameter_specs.values())

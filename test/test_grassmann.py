@@ -1,0 +1,140 @@
+import numpy as np
+import pytest
+
+from grass_nrsfm_ros.nrsfm import grassmann as gm
+
+
+def random_bases(rng, K, D, N):
+    return [np.linalg.qr(rng.normal(size=(D, N)))[0] for _ in range(K)]
+
+
+def test_omega_is_symmetric_psd_projection_kernel():
+    rng = np.random.default_rng(0)
+    bases = random_bases(rng, 7, 30, 4)
+    bases.append(bases[0] @ np.linalg.qr(rng.normal(size=(4, 4)))[0])   # same subspace twice
+    stacked = np.concatenate(bases, axis=1)
+    omega = gm.projection_kernel(stacked.T @ stacked, [4] * 8, delta=0.0)
+    assert np.allclose(omega, omega.T)
+    assert np.linalg.eigvalsh(omega).min() > -1e-10
+    assert np.allclose(np.diag(omega), 4.0)
+    i, j = 2, 5
+    expect = np.linalg.norm(bases[i] @ bases[i].T - bases[j] @ bases[j].T) ** 2
+    assert omega[i, j] == pytest.approx(4.0 - expect / 2.0)   # ||P_i - P_j||^2 = 2N - 2 Omega_ij
+    # coincident subspaces make Omega singular; delta restores definiteness
+    assert np.linalg.eigvalsh(omega).min() < 1e-9
+    safe = gm.projection_kernel(stacked.T @ stacked, [4] * 8, delta=1e-6)
+    assert np.linalg.eigvalsh(safe).min() > 1e-7
+
+
+def test_zeta_is_exact_on_low_rank_groups_and_truncates_otherwise():
+    rng = np.random.default_rng(1)
+    low = np.hstack([rng.normal(size=(24, 3)) @ rng.normal(size=(3, n)) for n in (10, 15, 8)])
+    edges = np.array([0, 10, 25, 33])
+    assert np.allclose(gm.zeta(low.copy(), edges, 3), low, atol=1e-10)
+    full = rng.normal(size=(24, 33))
+    out = gm.zeta(full.copy(), edges, 3)
+    for a, b in zip(edges[:-1], edges[1:]):
+        U, s, Vt = np.linalg.svd(full[:, a:b], full_matrices=False)
+        assert np.allclose(out[:, a:b], (U[:, :3] * s[:3]) @ Vt[:3], atol=1e-10)
+    half = gm.zeta(full.copy(), edges, 3, weight=0.5)
+    assert np.allclose(half, 0.5 * (full + out))
+
+
+def test_c_update_satisfies_its_optimality_condition():
+    rng = np.random.default_rng(2)
+    bases = random_bases(rng, 6, 20, 3)
+    stacked = np.concatenate(bases, axis=1)
+    omega = gm.projection_kernel(stacked.T @ stacked, [3] * 6)
+    J, Y = rng.normal(size=(6, 6)), rng.normal(size=(6, 6))
+    lam, beta = 0.7, 0.3
+    C = gm.c_update(omega, J, Y, lam, beta)
+    grad = 2 * lam * (C @ omega - omega) + Y + beta * (C - J)
+    assert np.abs(grad).max() < 1e-10
+    # and it is the minimiser: random perturbations never lower the objective
+
+    def objective(c):
+        return (lam * gm.embedding_error(c, omega) + np.sum(Y * (c - J))
+                + beta / 2 * np.sum((c - J) ** 2))
+    base = objective(C)
+    for _ in range(20):
+        assert objective(C + 1e-3 * rng.normal(size=C.shape)) >= base
+
+
+def test_embedding_error_matches_explicit_embedding():
+    rng = np.random.default_rng(3)
+    bases = random_bases(rng, 4, 10, 2)
+    stacked = np.concatenate(bases, axis=1)
+    omega = gm.projection_kernel(stacked.T @ stacked, [2] * 4, delta=0.0)
+    C = rng.normal(size=(4, 4))
+    Z = [b @ b.T for b in bases]
+    explicit = sum(np.linalg.norm(Z[i] - sum(C[i, j] * Z[j] for j in range(4))) ** 2
+                   for i in range(4))
+    assert gm.embedding_error(C, omega) == pytest.approx(explicit)
+
+
+def test_singular_value_threshold_and_lrr_affinity():
+    rng = np.random.default_rng(4)
+    M = rng.normal(size=(5, 5))
+    out, nuc = gm.singular_value_threshold(M, 0.5)
+    s = np.linalg.svd(M, compute_uv=False)
+    assert np.allclose(np.linalg.svd(out, compute_uv=False), np.maximum(s - 0.5, 0))
+    assert nuc == pytest.approx(np.maximum(s - 0.5, 0).sum())
+    C = np.zeros((6, 6))
+    C[:3, :3], C[3:, 3:] = 1.0 / 3, 1.0 / 3                   # two blocks of groups
+    A = gm.lrr_affinity(C + 1e-3 * rng.normal(size=C.shape), 4)
+    assert A[:3, :3].min() > 0.9 and A[:3, 3:].max() < 0.1
+
+
+def test_top_subspace_and_power_iteration_match_svd():
+    rng = np.random.default_rng(5)
+    for shape in ((30, 200), (200, 30)):
+        M = rng.normal(size=shape) * np.linspace(3, 0.1, shape[1])
+        U = np.linalg.svd(M, full_matrices=False)[0][:, :4]
+        basis, sv = gm.top_subspace(M, 4)
+        assert np.allclose(basis @ basis.T, U @ U.T, atol=1e-8)
+        assert np.allclose(sv, np.linalg.svd(M, compute_uv=False)[:4])
+    M = rng.normal(size=(40, 300)) * np.r_[np.full(3, 10.0), np.ones(37)][:, None]
+    basis = np.linalg.qr(rng.normal(size=(40, 3)))[0]
+    for _ in range(30):
+        basis = gm.subspace_iteration(M, basis)
+    U = np.linalg.svd(M, full_matrices=False)[0][:, :3]
+    assert np.linalg.norm(basis @ basis.T - U @ U.T) < 1e-6
+
+
+def test_reassign_moves_trajectories_to_their_subspace_and_keeps_min_size():
+    rng = np.random.default_rng(6)
+    bases = random_bases(rng, 3, 30, 2)
+    truth = np.repeat(np.arange(3), 40)
+    S = np.hstack([bases[k] @ rng.normal(size=(2, 40)) for k in range(3)])
+    labels = truth.copy()
+    labels[:10] = 1                                           # 10 of group 0 misplaced
+    new = gm.reassign_by_residual(S, labels, bases, np.ones((3, 3)), 0.5, min_size=3)
+    assert np.array_equal(new, truth)
+    blocked = gm.reassign_by_residual(S, labels, bases, np.eye(3), 0.5, min_size=3)
+    assert np.array_equal(blocked, labels)                  # affinity forbids the move
+    small = gm.reassign_by_residual(S, labels, bases, np.ones((3, 3)), 0.5, min_size=45)
+    assert (small == 1).sum() >= 45                           # group 1 may not drop below 45
+
+
+def test_initial_groups_and_blocks():
+    rng = np.random.default_rng(7)
+    S = np.hstack([rng.normal(size=(12, 1)) * 10 + rng.normal(size=(12, 50)) for _ in range(4)])
+    labels = gm.initial_groups(S, 4, random_state=0)
+    assert labels.shape == (200,) and set(labels) == {0, 1, 2, 3}
+    assert all(len(set(labels[k * 50:(k + 1) * 50])) == 1 for k in range(4))
+    assert gm.contiguous_blocks(10, 3).tolist() == [0, 3, 7, 10]
+
+
+def test_block_boundary_moves_to_the_better_block():
+    rng = np.random.default_rng(8)
+    a, b = rng.normal(size=(2, 300))
+    X = np.vstack([np.outer(rng.normal(size=6), a), np.outer(rng.normal(size=6), b)])
+    G = X @ X.T
+    edges = np.array([0, 7, 12])                              # frame 6 belongs to block 1
+    bases = gm.block_bases(G, edges, 1)
+    new = gm.move_block_boundaries(G, edges, bases, np.ones((2, 2)), 0.5, 2)
+    assert new.tolist() == [0, 6, 12]
+    cross = gm.block_cross(G, edges, bases)
+    psi = [X[edges[k]:edges[k + 1]].T @ (v / s) for k, (v, s) in enumerate(bases)]
+    stacked = np.concatenate(psi, axis=1)
+    assert np.allclose(cross, stacked.T @ stacked)
