@@ -120,10 +120,11 @@ def _bent_arc(s, kappa):
 
 def _bending(uv, t):
     """A paper sheet bending (isometrically) about an axis that turns slowly; the curvature
-    swings from one side to the other (about +-1.5 per unit length)."""
+    varies from 1.6 per unit length (ends curled up by about 90 degrees) through flat to
+    slightly reversed (-0.2)."""
     x, y = _sheet(uv)
     t = t[:, None]
-    kappa = 1.5 * np.sin(2 * np.pi * t + 0.4)                # (F, 1)
+    kappa = 0.7 + 0.9 * np.sin(2 * np.pi * t + 0.4)           # (F, 1)
     phi = 0.5 * np.sin(np.pi * t)                             # bend-axis direction
     c, s = np.cos(phi), np.sin(phi)
     a = c * x + s * y                                         # across the bend axis
