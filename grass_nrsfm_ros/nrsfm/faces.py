@@ -129,7 +129,7 @@ def make_face_sequence(n_frames=99, n_points=28880, *, model=None, noise=0.0, se
 
     ``model`` a :class:`FaceModel`, a path, or None (see :func:`load_face_model`).
     ``head_motion`` one of :func:`.synthetic.camera_motions` ('orbit': yaw +-35, pitch +-20,
-    roll +-8 degrees). ``noise`` is the paper's r (sigma = r max|W|). The world shape of each
+    roll +-10 degrees). ``noise`` is the paper's r (sigma = r max|W|). The world shape of each
     frame is centred on the identity's sample centroid. Returns a :class:`.synthetic.Sequence`
     with ``W: (2F, P)``, ``S: (3F, P)``, ``R: (F, 3, 3)``; ``meta`` holds the expression
     weights.

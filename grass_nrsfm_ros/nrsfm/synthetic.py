@@ -240,7 +240,7 @@ def _orbit(rng, t):
     phase = rng.uniform(0.0, 2 * np.pi, 3)
     return (35 * DEG * np.sin(2 * np.pi * 0.8 * t + phase[0]),
             20 * DEG * np.sin(2 * np.pi * 0.6 * t + phase[1]),
-            8 * DEG * np.sin(2 * np.pi * 0.5 * t + phase[2]))
+            10 * DEG * np.sin(2 * np.pi * 0.5 * t + phase[2]))
 
 
 def _wobble(rng, t):
@@ -260,7 +260,7 @@ _CAMERAS = {'orbit': _orbit, 'wobble': _wobble, 'static': _static, 'shaky': _sha
 
 
 def camera_motions():
-    """Names of the camera motions: 'orbit' (smooth yaw +-35, pitch +-20, roll +-8 degrees),
+    """Names of the camera motions: 'orbit' (smooth yaw +-35, pitch +-20, roll +-10 degrees),
     'wobble' (small smooth random motion, a few degrees), 'static' (identity: degenerate),
     'shaky' (orbit plus 2 degree per-frame jitter)."""
     return tuple(_CAMERAS)
