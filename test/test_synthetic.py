@@ -196,3 +196,19 @@ def test_observe_without_noise_or_translation_matches_projection():
     np.testing.assert_allclose(seq.W, from_frames(R[:, :2] @ as_frames(S_world, 3)),
                                atol=1e-14)
     assert not seq.translation.any()
+
+
+def test_articulated_panels_are_each_rigid():
+    """Articulated: distances within each panel stay fixed, across the hinge they change."""
+    seq = make_sequence('articulated', n_frames=15, n_points=400, camera='orbit', seed=6)
+    X = as_frames(seq.S_world, 3)                                   # (F, 3, P)
+    right = X[0, 0] >= 0    # frame 0 is the flat-open book (both hinge angles 0)
+
+    def spread_of_distances(a, b):
+        d = np.linalg.norm(X[:, :, a][:, :, :, None] - X[:, :, b][:, :, None, :], axis=1)
+        return np.ptp(d, axis=0).max()
+
+    left_idx, right_idx = np.flatnonzero(~right)[:30], np.flatnonzero(right)[:30]
+    assert spread_of_distances(left_idx, left_idx) < 1e-12
+    assert spread_of_distances(right_idx, right_idx) < 1e-12
+    assert spread_of_distances(left_idx, right_idx) > 0.2

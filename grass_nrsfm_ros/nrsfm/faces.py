@@ -16,7 +16,6 @@ from pathlib import Path
 
 import numpy as np
 
-from .measurement import from_frames
 from .synthetic import _streams, _times, camera_rotations, observe
 
 ENV_MODEL = 'GRASS_NRSFM_FACE_MODEL'
@@ -130,7 +129,7 @@ def make_face_sequence(n_frames=99, n_points=28880, *, model=None, noise=0.0, se
 
     ``model`` a :class:`FaceModel`, a path, or None (see :func:`load_face_model`).
     ``head_motion`` one of :func:`.synthetic.camera_motions` ('orbit': yaw +-35, pitch +-20,
-    roll +-8 degrees). ``noise`` is the paper's r (sigma = r max|W|). The world shape of each
+    roll +-10 degrees). ``noise`` is the paper's r (sigma = r max|W|). The world shape of each
     frame is centred on the identity's sample centroid. Returns a :class:`.synthetic.Sequence`
     with ``W: (2F, P)``, ``S: (3F, P)``, ``R: (F, 3, 3)``; ``meta`` holds the expression
     weights.
@@ -146,9 +145,9 @@ def make_face_sequence(n_frames=99, n_points=28880, *, model=None, noise=0.0, se
     base = interpolate(identity, model.triangles, tri, bary)              # (P, 3)
     offsets = interpolate(model.expressions, model.triangles, tri, bary)   # (E, P, 3)
     weights = expression_weights(len(model.expressions), n_frames, rng_expression)  # (F, E)
-    points = base - base.mean(axis=0)
-    frames = points[None] + np.einsum('fe,epd->fpd', weights, offsets)     # (F, P, 3)
-    S_world = from_frames(frames.transpose(0, 2, 1))
+    points = (base - base.mean(axis=0)).T                                  # (3, P)
+    deltas = offsets.transpose(0, 2, 1).reshape(len(offsets), -1)          # (E, 3P)
+    S_world = (weights @ deltas + points.reshape(1, -1)).reshape(-1, n_points)  # (3F, P)
     R = camera_rotations(head_motion, n_frames, rng_camera)
     meta = {'generator': __name__, 'kind': 'face', 'camera_motion': head_motion, 'seed': seed,
             'identity_components': k, 'units': 'mm',

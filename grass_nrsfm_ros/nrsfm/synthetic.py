@@ -120,10 +120,11 @@ def _bent_arc(s, kappa):
 
 def _bending(uv, t):
     """A paper sheet bending (isometrically) about an axis that turns slowly; the curvature
-    swings from one side to the other (about +-1.5 per unit length)."""
+    varies from 1.6 per unit length (ends curled up by about 90 degrees) through flat to
+    slightly reversed (-0.2)."""
     x, y = _sheet(uv)
     t = t[:, None]
-    kappa = 1.5 * np.sin(2 * np.pi * t + 0.4)                # (F, 1)
+    kappa = 0.7 + 0.9 * np.sin(2 * np.pi * t + 0.4)           # (F, 1)
     phi = 0.5 * np.sin(np.pi * t)                             # bend-axis direction
     c, s = np.cos(phi), np.sin(phi)
     a = c * x + s * y                                         # across the bend axis
@@ -239,7 +240,7 @@ def _orbit(rng, t):
     phase = rng.uniform(0.0, 2 * np.pi, 3)
     return (35 * DEG * np.sin(2 * np.pi * 0.8 * t + phase[0]),
             20 * DEG * np.sin(2 * np.pi * 0.6 * t + phase[1]),
-            8 * DEG * np.sin(2 * np.pi * 0.5 * t + phase[2]))
+            10 * DEG * np.sin(2 * np.pi * 0.5 * t + phase[2]))
 
 
 def _wobble(rng, t):
@@ -259,7 +260,7 @@ _CAMERAS = {'orbit': _orbit, 'wobble': _wobble, 'static': _static, 'shaky': _sha
 
 
 def camera_motions():
-    """Names of the camera motions: 'orbit' (smooth yaw +-35, pitch +-20, roll +-8 degrees),
+    """Names of the camera motions: 'orbit' (smooth yaw +-35, pitch +-20, roll +-10 degrees),
     'wobble' (small smooth random motion, a few degrees), 'static' (identity: degenerate),
     'shaky' (orbit plus 2 degree per-frame jitter)."""
     return tuple(_CAMERAS)
