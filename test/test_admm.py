@@ -90,11 +90,13 @@ def test_fit_beats_rigid_reconstruction_with_true_rotations():
     rigid = e3d(rigid_with_rotations(W, R), S)
     err = e3d(res.S, S)
     assert err < 0.6 * rigid, (err, rigid)
-    assert res.report.converged and res.report.reason == 'beta reached beta_max'
+    assert res.report.converged and res.report.fallback is None
     # outputs in the caller's column order and units: x, y reproduce the centred tracks
     Wc = W - res.translation
     xy = res.S.reshape(-1, 3, W.shape[1])[:, :2].reshape(W.shape)
-    assert np.abs(xy - Wc).max() < 0.02 * np.abs(Wc).max()
+    assert np.linalg.norm(xy - Wc) < 0.05 * np.linalg.norm(Wc)
+    assert res.report.reprojection_relative == pytest.approx(
+        np.sqrt(np.mean((xy - Wc) ** 2)) / np.sqrt(np.mean(Wc ** 2)))
     assert np.allclose(res.R, R)
     assert res.groups.shape == (W.shape[1],) and res.groups.max() + 1 == res.report.K_s
 
@@ -114,7 +116,7 @@ def test_admm_gaps_shrink_and_report_is_complete():
     assert late[2] < 1e-3 * max(early[2], 1e-12) + 1e-9     # C_t = J_t
     for phase in ('rotation', 's_update', 'spatial', 'svt', 'temporal', 'total'):
         assert phase in rep.seconds
-    assert rep.reprojection_relative < 0.02
+    assert rep.reprojection_relative < 0.05
     assert min(rep.K_s, rep.K_t, rep.N_s, rep.N_t) >= 1
 
 

@@ -275,7 +275,7 @@ class GrassmannNRSfM:
     @staticmethod
     def _sizes(p, F, P, groups):
         """Resolve 'auto' K_s, K_t, N_s, N_t from (F, P) (documented in the module docstring)."""
-        N_s = p['N_s'] if p['N_s'] != 'auto' else int(min(3 * F - 1, 9))
+        N_s = p['N_s'] if p['N_s'] != 'auto' else int(min(3 * F - 1, 5))
         if groups is not None:
             K_s = int(len(np.unique(groups)))
         elif p['K_s'] != 'auto':
@@ -283,9 +283,9 @@ class GrassmannNRSfM:
         else:
             K_s = int(np.clip(P // (20 * (N_s + 1)), 1, 20))
         K_s = max(1, min(K_s, P // (N_s + 1)))
-        K_t = p['K_t'] if p['K_t'] != 'auto' else int(np.clip(F // 10, 1, 10))
+        K_t = p['K_t'] if p['K_t'] != 'auto' else int(np.clip(round(F / 20), 1, 10))
         K_t = max(1, min(K_t, F))
-        N_t = p['N_t'] if p['N_t'] != 'auto' else max(1, (F // K_t) // 2)
+        N_t = p['N_t'] if p['N_t'] != 'auto' else int(min(3, F // K_t))
         return K_s, K_t, N_s, N_t
 
     # the solver --------------------------------------------------------------------------------
@@ -495,11 +495,14 @@ class _State:
         p, beta, F, P = self.p, self.beta, self.F, self.P
         t = time.perf_counter()
         # S update: (R^T R + beta I) S = R^T W + beta S# + Y1, per frame in closed form
-        cam = self.R @ (beta * self.Ssh + self.Y1)
+        rhs = self.Ssh * beta
+        rhs += self.Y1
+        cam = np.matmul(self.R, rhs)
+        del rhs
         cam[:, :2, :] += self.W
         cam[:, :2, :] /= 1.0 + beta
         cam[:, 2, :] /= beta
-        self.S = self.R.transpose(0, 2, 1) @ cam
+        self.S = np.matmul(self.R.transpose(0, 2, 1), cam)
         t = timer.add('s_update', t)
 
         if p['spatial']:
@@ -517,7 +520,9 @@ class _State:
         t = timer.add('spatial', t)
 
         # S# update: SVT of T1(S) - Y1/beta via the F x F Gram matrix, then zeta_t
-        X = (self.S - self.Y1 / beta).reshape(F, 3 * P)
+        X = np.multiply(self.Y1, -1.0 / beta)
+        X += self.S
+        X = X.reshape(F, 3 * P)
         G = X @ X.T
         vals, vecs = np.linalg.eigh(G)
         sv = np.sqrt(np.maximum(vals, 0.0))
@@ -562,9 +567,11 @@ class _State:
                 [v.shape[1] for v, _ in self.t_bases], p['delta'])
             obj += p['lambda2'] * gm.embedding_error(self.C_t, self.Omega_t) + p['lambda4'] * nuc_jt
 
-        # multipliers, penalty, objective and gaps
-        diff = self.Ssh - self.S
-        self.Y1 += beta * diff
+        # multipliers, penalty, objective and gaps (in place: these are (F, 3, P) arrays)
+        diff = np.subtract(self.Ssh, self.S)
+        gap_sh = float(max(diff.max(), -diff.min()))
+        diff *= beta
+        self.Y1 += diff
         gap_s = gap_t = 0.0
         if p['spatial']:
             self.Y2 += beta * (self.C_s - self.J_s)
@@ -572,9 +579,9 @@ class _State:
         if p['temporal']:
             self.Y3 += beta * (self.C_t - self.J_t)
             gap_t = float(np.abs(self.C_t - self.J_t).max())
-        gap_sh = float(np.abs(diff).max())
-        proj = np.einsum('fij,fjp->fip', self.R[:, :2, :], self.S)
-        obj += 0.5 * float(np.sum((self.W - proj) ** 2))
+        resid = np.matmul(self.R[:, :2, :], self.S)
+        resid -= self.W
+        obj += 0.5 * float(np.vdot(resid, resid))
         obj += self.gamma * float(np.sqrt(np.maximum(np.linalg.eigvalsh(G1), 0.0)).sum())
         self.beta_reached_max = beta >= p['beta_max']
         self.beta = min(p['rho'] * beta, p['beta_max'])

@@ -120,7 +120,10 @@ def zeta(S, edges, rank, weight=1.0, bases=None):
         if block.shape[1] <= rank:
             continue
         basis = top_subspace(block, rank)[0] if bases is None else bases[k]
-        block -= weight * (block - basis @ (basis.T @ block))
+        if weight == 1.0:
+            block[...] = basis @ (basis.T @ block)
+        else:
+            block -= weight * (block - basis @ (basis.T @ block))
     return S
 
 
