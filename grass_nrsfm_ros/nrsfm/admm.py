@@ -201,7 +201,7 @@ class GrassmannNRSfM:
         'affinity_min': ('groups exchange points only if their affinity is at least this',
                          'float in [0, 1]'),
         'regroup_every': ('iterations between xi regroupings (0: never regroup)', 'int >= 0'),
-        'zeta_weight': ('1 = the paper\'s rank-N projection; < 1 relaxes it', 'float in [0, 1]'),
+        'zeta_weight': ("1 = the paper's rank-N projection; < 1 relaxes it", 'float in [0, 1]'),
         'power_steps': ('warm-started power iterations per ADMM iteration for spatial bases',
                         'int >= 1'),
         'delta': ('Omega safeguard: adds delta * trace(Omega)/K * I', 'float >= 0'),
@@ -589,12 +589,14 @@ class _State:
         obj = 0.0
         if p['spatial']:
             self.Omega_s = self._omega_s()
-            obj += p['lambda1'] * gm.embedding_error(self.C_s, self.Omega_s) + p['lambda3'] * nuc_js
+            obj += (p['lambda1'] * gm.embedding_error(self.C_s, self.Omega_s)
+                    + p['lambda3'] * nuc_js)
         if p['temporal']:
             self.Omega_t = gm.projection_kernel(
                 gm.block_cross(G1, self.t_edges, self.t_bases),
                 [v.shape[1] for v, _ in self.t_bases], p['delta'])
-            obj += p['lambda2'] * gm.embedding_error(self.C_t, self.Omega_t) + p['lambda4'] * nuc_jt
+            obj += (p['lambda2'] * gm.embedding_error(self.C_t, self.Omega_t)
+                    + p['lambda4'] * nuc_jt)
 
         # multipliers, penalty, objective and gaps (in place: these are (F, 3, P) arrays)
         diff = np.subtract(self.Ssh, self.S)

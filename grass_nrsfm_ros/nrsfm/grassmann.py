@@ -58,7 +58,7 @@ def c_update(Omega, J, Y, lam, beta):
 
 
 def singular_value_threshold(M, tau):
-    """``U max(Sigma - tau, 0) V^T`` of a small matrix ``M``; returns ``(result, nuclear norm)``."""
+    """``U max(Sigma - tau, 0) V^T`` of a small matrix ``M``; returns ``(result, nuclear)``."""
     U, s, Vt = np.linalg.svd(M, full_matrices=False)
     s = np.maximum(s - tau, 0.0)
     return (U * s) @ Vt, float(s.sum())
