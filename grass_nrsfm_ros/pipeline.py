@@ -106,7 +106,8 @@ class Solution:
     S: np.ndarray           # (3F, P)
     R: np.ndarray           # (F, 3, 3)
     groups: np.ndarray      # (P,) or None
-    report: object
+    report: object          # the solver's report
+    residual: float         # ||Wc - x,y rows of S|| / ||Wc||: relative reprojection residual
 
 
 def _warm_start_class():
@@ -257,8 +258,11 @@ class SlidingWindow:
             R = DEPTH_FLIP @ R @ DEPTH_FLIP
             Z = as_frames(S, 3)[:, 2, :]
         uv = window.W.reshape(window.n_frames, 2, -1).transpose(0, 2, 1)
+        residual = float(np.linalg.norm(as_frames(Wc, 2) - as_frames(S, 3)[:, :2, :])
+                         / max(np.linalg.norm(Wc), 1e-300))
         self._previous = Solution(window.sequence, window.stamps, window.ids, uv, S, R,
-                                  getattr(result, 'groups', None), getattr(result, 'report', None))
+                                  getattr(result, 'groups', None), getattr(result, 'report', None),
+                                  residual)
         self._count('solved')
         return self._publish(window, as_frames(Wc, 2), Z)
 
