@@ -27,6 +27,7 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
                                 SetParametersResult)
 import rclpy
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -296,7 +297,7 @@ def main(args=None, *, solver_factory=None, warm_start_class=None):
     rclpy.init(args=args)
     try:
         node = ReconstructionNode(solver_factory, warm_start_class)
-    except ValueError as exc:
+    except (ValueError, ParameterException) as exc:
         print(f'grass_nrsfm node: error: {exc}', file=sys.stderr)
         rclpy.try_shutdown()
         return 2
