@@ -65,7 +65,8 @@ def run(mode):
     try:
         import grass_nrsfm_ros.pipeline  # noqa: F401
     except ImportError as exc:
-        return {'rows': [], 'skipped': [{'why': f'grass_nrsfm_ros.pipeline not available ({exc})'}]}
+        why = f'grass_nrsfm_ros.pipeline not available ({exc})'
+        return {'rows': [], 'skipped': [{'why': why}]}
     factory, solver = solver_factory()
     if factory is None:
         return {'rows': [], 'skipped': [{'why': solver}]}
@@ -80,8 +81,8 @@ def run(mode):
             skipped.append({'P': P, 'why': f'{type(exc).__name__}: {exc}'})
     out = {'solver': solver, 'rows': rows, 'skipped': skipped}
     if mode.name != 'smoke' and rows:
-        path = plot.line_plot(mode.out_dir / 'streaming_fps.png',
-                              {solver: ([np.log10(r['P']) for r in rows], [r['fps'] for r in rows])},
+        series = {solver: ([np.log10(r['P']) for r in rows], [r['fps'] for r in rows])}
+        path = plot.line_plot(mode.out_dir / 'streaming_fps.png', series,
                               title='sustained fps vs tracks', xlabel='log10 tracks',
                               ylabel='frames/s', logy=True)
         out['plots'] = [path.name] if path else []

@@ -18,6 +18,12 @@ rank-3K factorisation (:func:`.rotation.rotations_for_rank` with the trajectory 
 the rank W supports). Any ``R: (F, 3, 3)`` can also be passed (e.g. ground truth or
 :func:`.rotation.estimate_rotations`).
 
+Measured on the mocap sets (Akhter's metric, K chosen against ground truth; published PTA in
+brackets, OP Tab. 2): with rigid rotations drink 0.247 (0.025), pickup 0.411 (0.237), yoga 0.613
+(0.162), dance 0.527 (0.296), face 0.055 (0.044), shark 0.191 (0.180); with Dai's rotations
+(``R=estimate_rotations(W).R``) 0.020, 0.077, 0.039, 0.238, 0.045, 0.179. The rigid camera is
+far off on Akhter's four sequences, so the benchmarks report both.
+
 Conventions (:mod:`.measurement`): ``W: (2F, P)``, ``S: (3F, P)`` camera frame,
 ``R: (F, 3, 3)`` world to camera.
 """
@@ -70,7 +76,8 @@ def trajectory_coefficients(Wc, R, theta, rcond=RCOND):
 
 
 def shapes_from_coefficients(A, R, theta):
-    """Camera-frame shapes ``S: (3F, P)`` from ``A: (K, 3, P)``: ``S_f = R_f sum_k theta_fk A_k``."""
+    """Camera-frame shapes ``S: (3F, P)`` from ``A: (K, 3, P)``:
+    ``S_f = R_f sum_k theta_fk A_k``."""
     world = np.einsum('fk,kcp->fcp', theta, A)                  # (F, 3, P)
     return from_frames(R @ world)
 
