@@ -30,8 +30,8 @@ import time
 
 import numpy as np
 
-from grass_nrsfm_ros.cloud import CloudError, decode_points, decode_tracks, DTYPE_TO_DATATYPE
-from grass_nrsfm_ros.cloud import points_array, tracks_array
+from grass_nrsfm_ros.cloud import (CloudError, decode_points, decode_tracks, DTYPE_TO_DATATYPE,
+                                   points_array, tracks_array)
 
 TRACKS_TOPIC = '/tracks'
 POINTS_TOPIC = '/points'
@@ -441,8 +441,8 @@ def recover(bag_path, out_path=None, *, chunk_size=DEFAULT_CHUNK_SIZE):
 
     files = mcap_files(bag_path)
     src = Path(bag_path)
-    out = Path(out_path) if out_path else src.with_name(f'{src.stem if src.is_file() else src.name}'
-                                                        '_recovered')
+    stem = src.stem if src.is_file() else src.name
+    out = Path(out_path) if out_path else src.with_name(f'{stem}_recovered')
     report = RecoveryReport(out_path=out)
     with BagWriter(out, chunk_size=chunk_size) as writer:
         for path in files:

@@ -299,3 +299,42 @@ def test_writer_refuses_to_overwrite(tmp_path):
     (tmp_path / 'x' / 'keep').write_text('1')
     with pytest.raises(FileExistsError):
         bag.BagWriter(tmp_path / 'x')
+
+
+def test_convert_round_trip_equals_W(tmp_path, dataset, capsys):
+    from grass_nrsfm_ros.cli import main
+
+    W, S = dataset('akhter_mocap/yoga.npz')
+    np.savez(tmp_path / 'in.npz', W=W, S=S)
+    assert main(['convert', str(tmp_path / 'in.npz'), str(tmp_path / 'y'), '--rate', '25',
+                 '--start', '100', '--frame-id', 'cam']) == 0
+    assert '307 messages on /tracks, 307 messages on /ground_truth' in capsys.readouterr().out
+    frames = list(bag.read_tracks(tmp_path / 'y'))
+    assert len(frames) == 307 and {f.frame_id for f in frames} == {'cam'}
+    assert [f.stamp_ns for f in frames] == [100 * 10**9 + k * 40_000_000 for k in range(307)]
+    W2, ids, _ = bag.read_W(tmp_path / 'y')
+    np.testing.assert_array_equal(ids, np.arange(41))
+    np.testing.assert_array_equal(W2, W)                   # the data are float32 already
+    S2, _, _ = bag.read_S(tmp_path / 'y', bag.GROUND_TRUTH_TOPIC)
+    np.testing.assert_array_equal(S2, S)
+
+
+def test_convert_leaves_out_invisible_points_and_recover_cli(tmp_path, capsys):
+    from grass_nrsfm_ros.cli import main
+
+    W, _ = synthetic_W(F=4, P=6)
+    visible = np.ones((4, 6), bool)
+    visible[1, [0, 4]] = False
+    np.savez(tmp_path / 'in.npz', W=W, visible=visible)
+    assert main(['convert', str(tmp_path / 'in.npz'), str(tmp_path / 'v')]) == 0
+    frames = list(bag.read_tracks(tmp_path / 'v'))
+    np.testing.assert_array_equal(frames[1].ids, [1, 2, 3, 5])
+    W2, _, _ = bag.read_W(tmp_path / 'v')
+    expected = W.astype(np.float32).astype(np.float64)
+    expected[2:4, [0, 4]] = np.nan
+    np.testing.assert_array_equal(W2, expected)
+    assert main(['recover', str(tmp_path / 'v'), '-o', str(tmp_path / 'r')]) == 0
+    assert 'recovered 4 messages from 1 file(s)' in capsys.readouterr().out
+    np.savez(tmp_path / 'bad.npz', X=W)
+    assert main(['convert', str(tmp_path / 'bad.npz'), str(tmp_path / 'z')]) == 2
+    assert 'has no array W' in capsys.readouterr().err
