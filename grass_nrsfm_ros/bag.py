@@ -658,3 +658,125 @@ def bag_size_bytes(path):
     if path.is_file():
         return path.stat().st_size
     return sum(os.path.getsize(p) for p in path.rglob('*') if p.is_file())
+
+
+# ---------------------------------------------------------------------------- offline pipeline
+
+@dataclass
+class ReconstructionReport:
+    """What :func:`reconstruct_bag` did: frames in and out, windows, refusals, timings."""
+
+    out_path: Path
+    frames_in: int = 0
+    frames_out: int = 0
+    windows: int = 0
+    refused: list = field(default_factory=list)      # one line per refused frame or window
+    copied: Counter = field(default_factory=Counter)  # input topic -> messages copied
+    seconds: float = 0.0
+    cpu_seconds: float = 0.0
+
+
+def text_progress(stream=None, width=30):
+    """A ``progress(done, total)`` callback drawing ``[####    ] done/total`` on stderr."""
+    import sys
+
+    stream = stream or sys.stderr
+    state = {'last': -1.0}
+
+    def draw(done, total):
+        now = time.monotonic()
+        if done < total and now - state['last'] < 0.1:
+            return
+        state['last'] = now
+        filled = int(width * done / max(total, 1))
+        stream.write(f'\r[{"#" * filled}{" " * (width - filled)}] {done}/{total} frames')
+        if done >= total:
+            stream.write('\n')
+        stream.flush()
+    return draw
+
+
+def reconstruct_bag(in_path, out_path, pipeline, *, topic=TRACKS_TOPIC,
+                    points_topic=POINTS_TOPIC, copy_inputs=True, progress=None,
+                    skip_errors=(ValueError,)):
+    """Run the windowed pipeline over a tracks bag offline, as fast as the solver goes, and
+    write a bag at ``out_path`` with ``points_topic`` (one cloud per reconstructed frame,
+    stamped with the frame's stamp, logged at its tracks' receive time) and, with
+    ``copy_inputs``, every input message (CDR as recorded; for a ROS 1 source only the tracks,
+    re-encoded).
+
+    ``pipeline`` is a :class:`grass_nrsfm_ros.pipeline.SlidingWindow` (or anything with
+    ``add_frame(stamp_ns, ids, uv, frame_id) -> [window]``, ``solve(window) -> [result]`` and
+    ``flush() -> [window]``; results have ``stamp_ns, frame_id, ids: (P,), xyz: (P, 3)``).
+    Frames and windows that raise one of ``skip_errors`` are refused and listed in the report.
+    ``progress(done, total)`` is called after every input frame. Returns a
+    :class:`ReconstructionReport`.
+    """
+    report = ReconstructionReport(out_path=Path(out_path))
+    t_wall, t_cpu = time.perf_counter(), time.process_time()
+    with _Bag(in_path) as src, BagWriter(out_path) as out:
+        tracks_conns = src.connections(topic)
+        total = sum(c.msgcount for c in tracks_conns)
+        received = {}                                  # stamp -> receive time of its tracks
+        conns = src.reader.connections if copy_inputs else tracks_conns
+        if not src.is_ros1:
+            for c in conns:
+                out.add_topic(c.topic, c.msgtype, definition=_definition_of(c))
+
+        def emit(results):
+            for r in results:
+                out.write_points(np.asarray(r.xyz), np.asarray(r.ids), r.stamp_ns, r.frame_id,
+                                 topic=points_topic, t_ns=received.get(r.stamp_ns, r.stamp_ns))
+                report.frames_out += 1
+
+        def solve(windows):
+            for window in windows:
+                report.windows += 1
+                try:
+                    emit(pipeline.solve(window))
+                except skip_errors as exc:
+                    report.refused.append(f'window {report.windows}: {exc}')
+
+        for conn, t_ns, raw in src.messages(conns):
+            is_tracks = conn.topic == topic
+            if copy_inputs and not src.is_ros1:
+                out.write(conn.topic, raw, t_ns)
+                report.copied[conn.topic] += 1
+            if not is_tracks:
+                continue
+            msg = src.decode(raw, conn)
+            stamp = stamp_ns(msg.header.stamp)
+            if copy_inputs and src.is_ros1:
+                out.add_topic(topic, POINTCLOUD2)
+                out.write(topic, cloud_cdr(_tracks_fields(msg), stamp, msg.header.frame_id),
+                          t_ns)
+                report.copied[topic] += 1
+            report.frames_in += 1
+            try:
+                tracks = decode_tracks(msg)
+                received.setdefault(stamp, t_ns)
+                solve(pipeline.add_frame(stamp, tracks.ids, tracks.uv, msg.header.frame_id))
+            except (CloudError, *skip_errors) as exc:
+                report.refused.append(f'frame {report.frames_in - 1} (stamp {stamp}): {exc}')
+            if progress is not None:
+                progress(report.frames_in, total)
+        solve(pipeline.flush())
+    report.seconds = time.perf_counter() - t_wall
+    report.cpu_seconds = time.process_time() - t_cpu
+    return report
+
+
+def _definition_of(conn):
+    """ros2msg text for a connection's type: Jazzy's own, else the one stored in the bag."""
+    if conn.msgtype in typestore().types:
+        return message_definition(conn.msgtype)[0]
+    return conn.msgdef.data
+
+
+def _tracks_fields(msg):
+    """Structured (track_id, u, v) array of a tracks cloud (all points, NaN kept)."""
+    from grass_nrsfm_ros.cloud import TRACK_FIELDS, structured_view
+
+    view = structured_view(msg, TRACK_FIELDS)
+    uv = np.stack([view['u'], view['v']], axis=1).astype(np.float64)
+    return tracks_array(view['track_id'], uv)

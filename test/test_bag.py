@@ -338,3 +338,53 @@ def test_convert_leaves_out_invisible_points_and_recover_cli(tmp_path, capsys):
     np.savez(tmp_path / 'bad.npz', X=W)
     assert main(['convert', str(tmp_path / 'bad.npz'), str(tmp_path / 'z')]) == 2
     assert 'has no array W' in capsys.readouterr().err
+
+
+class ChunkPipeline:
+    """A stand-in with SlidingWindow's protocol: windows of 3 frames, xyz = (u, v, u + v)."""
+
+    def __init__(self):
+        self.buffer = []
+
+    def add_frame(self, stamp_ns, ids, uv, frame_id=''):
+        if len(ids) < 3:
+            raise ValueError(f'{len(ids)} tracks')
+        self.buffer.append((stamp_ns, frame_id, ids, uv))
+        if len(self.buffer) == 3:
+            return self.flush()
+        return []
+
+    def flush(self):
+        window, self.buffer = self.buffer, []
+        return [window] if window else []
+
+    def solve(self, window):
+        from types import SimpleNamespace
+        return [SimpleNamespace(stamp_ns=s, frame_id=f, ids=i,
+                                xyz=np.c_[uv, uv.sum(axis=1)]) for s, f, i, uv in window]
+
+
+def test_reconstruct_bag_writes_points_for_every_frame_and_copies_inputs(tmp_path):
+    W, S = synthetic_W(F=8, P=10)
+    visible = np.ones((8, 10), bool)
+    visible[5, 2:] = False                                  # frame 5: 2 tracks, refused
+    stamps = 10**9 + np.arange(8) * 1000
+    bag.tracks_bag_from_arrays(W, stamps, tmp_path / 'in', S=S, visible=visible)
+    calls = []
+    report = bag.reconstruct_bag(tmp_path / 'in', tmp_path / 'out', ChunkPipeline(),
+                                 progress=lambda d, t: calls.append((d, t)))
+    assert (report.frames_in, report.frames_out, report.windows) == (8, 7, 3)
+    assert len(report.refused) == 1 and 'frame 5' in report.refused[0]
+    assert report.copied == {'/tracks': 8, '/ground_truth': 8}
+    assert calls[-1] == (8, 8) and len(calls) == 8
+    points = list(bag.read_points(tmp_path / 'out'))
+    assert [p.stamp_ns for p in points] == [s for k, s in enumerate(stamps) if k != 5]
+    for p in points:
+        f = int(np.flatnonzero(stamps == p.stamp_ns)[0])
+        uv = W[2 * f:2 * f + 2].T.astype(np.float32)
+        np.testing.assert_allclose(p.xyz[:, :2], uv)
+        np.testing.assert_allclose(p.xyz[:, 2], uv.astype(np.float64).sum(axis=1), rtol=1e-6)
+    W2, _, _ = bag.read_W(tmp_path / 'out')
+    W_in, _, _ = bag.read_W(tmp_path / 'in')
+    np.testing.assert_array_equal(W2, W_in)
+    assert bag.topics(tmp_path / 'out')['/ground_truth'] == (bag.POINTCLOUD2, 8)
