@@ -108,7 +108,7 @@ def run(mode):
         rows += r
         skipped += s
     return {'rows': rows, 'skipped': skipped,
-            'notes': ["e3d: per-frame Procrustes (metrics.e3d); e3d_akhter: Akhter's "
-                      "compareStructs (mocap only, the metric of the published mocap table)",
+            'notes': ['e3d: per-frame Procrustes (metrics.e3d); e3d_akhter: compareStructs of '
+                      'Akhter et al. (mocap only, the metric of the published mocap table)',
                       'pta/pta_dai: K chosen against ground truth (K_oracle), an upper bound',
                       'perspective family: orthographic methods on perspective data (context)']}

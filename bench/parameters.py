@@ -58,7 +58,7 @@ def run(mode):
     settings = [(k, v, {k: v}) for k, values in sweeps.items() for v in values]
     ablation = mode.pick(('none', 'both'), tuple(ABLATION), tuple(ABLATION))
     settings += [('ablation', a, ABLATION[a]) for a in ablation]
-    rows, skipped, images = [], [], {}
+    rows, skipped = [], []
     mode.out_dir.mkdir(parents=True, exist_ok=True)
     for param, value, kwargs in settings:
         common.log(f'parameters: {name} {param}={value}')

@@ -6,8 +6,8 @@ Frames are fed as fast as the pipeline takes them, on one thread, with no window
 ``fps = frames published / (time in add_frame + solve)``; a window's latency is from the moment
 it closed (``Window.closed_at``) to the end of its solve.
 """
-from types import SimpleNamespace
 import time
+from types import SimpleNamespace
 
 import numpy as np
 

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from grass_nrsfm_ros.nrsfm.measurement import InvalidInputError, as_frames, project, to_camera
+from grass_nrsfm_ros.nrsfm.measurement import as_frames, InvalidInputError, project, to_camera
 from grass_nrsfm_ros.nrsfm.metrics import e3d, e3d_akhter
 from grass_nrsfm_ros.nrsfm.trajectory_basis import (dct_basis, pta, reprojection_residual,
                                                     trajectory_design)

@@ -29,7 +29,7 @@ Conventions (:mod:`.measurement`): ``W: (2F, P)``, ``S: (3F, P)`` camera frame,
 """
 import numpy as np
 
-from .measurement import (InvalidInputError, as_frames, centre, from_frames, validate_rotations,
+from .measurement import (as_frames, centre, from_frames, InvalidInputError, validate_rotations,
                           validate_tracks)
 
 #: default number of DCT trajectory vectors
