@@ -1,0 +1,92 @@
+"""``grass-nrsfm reconstruct IN -o OUT [--config FILE]``.
+
+``IN.npz`` holds ``W: (2F, P)`` (and optionally ground truth ``S: (3F, P)``, then e3D is
+printed); ``OUT.npz`` gets ``S``, ``R``, ``translation``, ``groups`` and the solver report (JSON
+string ``report``). A bag directory or ``.mcap``/``.bag`` file runs the node's sliding-window
+pipeline offline and writes an output bag.
+"""
+import json
+from pathlib import Path
+import sys
+import time
+
+import numpy as np
+
+from grass_nrsfm_ros.cli import UserError
+
+
+def add_arguments(parser):
+    parser.add_argument('input', help='.npz with W (2F, P), or a tracks bag')
+    parser.add_argument('-o', '--output', required=True, help='output .npz (or bag directory)')
+    parser.add_argument('--config', help='params.yaml (the node\'s file works too)')
+    parser.add_argument('--topic', default='/tracks', help='tracks topic when IN is a bag')
+    parser.add_argument('--quiet', action='store_true', help='no progress display')
+
+
+def solver_from_config(path):
+    """A GrassmannNRSfM built from the solver entries of a params file (or defaults)."""
+    from grass_nrsfm_ros.nrsfm import GrassmannNRSfM
+    from grass_nrsfm_ros.params import load_config, solver_kwargs
+
+    config = load_config(path) if path else {}
+    return GrassmannNRSfM(**solver_kwargs(config)), config
+
+
+class Progress:
+    """One overwritten status line on stderr while the solver iterates."""
+
+    def __init__(self, enabled):
+        self.enabled = enabled and sys.stderr.isatty()
+        self.start = time.monotonic()
+
+    def __call__(self, iteration, report):
+        if not self.enabled:
+            return
+        gap = report.gaps[-1] if report.gaps else float('nan')
+        gap = max(gap.values()) if isinstance(gap, dict) else gap
+        sys.stderr.write(f'\r  iteration {iteration:4d}  gap {gap:9.3e}  '
+                         f'{time.monotonic() - self.start:6.1f} s')
+        sys.stderr.flush()
+
+    def close(self):
+        if self.enabled:
+            sys.stderr.write('\n')
+
+
+def load_tracks(path):
+    """``(W, S_gt or None)`` from an .npz."""
+    with np.load(path) as npz:
+        if 'W' not in npz:
+            raise UserError(f'{path} has no array W (has {sorted(npz.files)})')
+        S = npz['S'].astype(np.float64) if 'S' in npz else None
+        return npz['W'].astype(np.float64), S
+
+
+def reconstruct_npz(args):
+    from grass_nrsfm_ros.nrsfm import e3d
+
+    W, S_gt = load_tracks(args.input)
+    solver, _ = solver_from_config(args.config)
+    progress = Progress(not args.quiet)
+    solver.set_params(progress=progress)
+    try:
+        result = solver.fit(W)
+    finally:
+        progress.close()
+    report = result.report
+    np.savez_compressed(args.output, S=result.S, R=result.R, translation=result.translation,
+                        groups=result.groups, report=json.dumps(report.to_dict()))
+    F, P = W.shape[0] // 2, W.shape[1]
+    print(f'{args.input}: F={F} P={P} K_rot={report.K_rot} iterations={report.iterations} '
+          f'seconds={report.seconds["total"]:.1f} -> {args.output}')
+    if S_gt is not None:
+        print(f'e3D (per-frame Procrustes, no scale): {e3d(result.S, S_gt):.4f}')
+    return 0
+
+
+def run(args):
+    if Path(args.input).suffix == '.npz':
+        return reconstruct_npz(args)
+    from grass_nrsfm_ros.bag import reconstruct_bag
+    return reconstruct_bag(args.input, args.output, config_path=args.config, topic=args.topic,
+                           progress=not args.quiet)

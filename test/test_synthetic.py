@@ -1,0 +1,214 @@
+import json
+
+import numpy as np
+import pytest
+
+from conftest import data_root
+from grass_nrsfm_ros.nrsfm.measurement import as_frames, centre, from_frames, to_camera
+from grass_nrsfm_ros.nrsfm.metrics import e3d
+from grass_nrsfm_ros.nrsfm.synthetic import (Sequence, camera_motions, default_sequence, kinds,
+                                             make_sequence, observe, rotations_from_angles)
+
+
+def rigid_factorisation(W):
+    """Tomasi-Kanade rank-3 factorisation with metric upgrade (a test-local baseline).
+
+    ``W: (2F, P)`` -> ``(R: (F, 3, 3), S: (3F, P))`` camera frame, plus the relative rank-3
+    residual of the centred tracks.
+    """
+    Wc, _ = centre(W)
+    U, s, Vt = np.linalg.svd(Wc, full_matrices=False)
+    residual = np.sqrt((s[3:] ** 2).sum() / (s ** 2).sum())
+    M = U[:, :3] * np.sqrt(s[:3])
+    shape = np.sqrt(s[:3])[:, None] * Vt[:3]
+    a, b = M[0::2], M[1::2]
+
+    def sym(x, y):   # coefficients of x^T L y in the 6 unknowns of a symmetric L
+        return np.stack([x[:, 0] * y[:, 0], x[:, 0] * y[:, 1] + x[:, 1] * y[:, 0],
+                         x[:, 0] * y[:, 2] + x[:, 2] * y[:, 0], x[:, 1] * y[:, 1],
+                         x[:, 1] * y[:, 2] + x[:, 2] * y[:, 1], x[:, 2] * y[:, 2]], axis=1)
+
+    F = len(a)
+    lhs = np.vstack([sym(a, a), sym(b, b), sym(a, b)])
+    rhs = np.concatenate([np.ones(2 * F), np.zeros(F)])
+    q = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
+    L = np.array([[q[0], q[1], q[2]], [q[1], q[3], q[4]], [q[2], q[4], q[5]]])
+    w, V = np.linalg.eigh(L)
+    Q = V * np.sqrt(np.clip(w, 1e-9 * w.max(), None))
+    U2, _, Vt2 = np.linalg.svd(as_frames(M @ Q, 2))
+    R2 = U2 @ np.eye(2, 3) @ Vt2
+    R = np.concatenate([R2, np.cross(R2[:, 0], R2[:, 1])[:, None]], axis=1)
+    S = from_frames(R @ np.linalg.solve(Q, shape)[None])
+    return R, S, residual
+
+
+@pytest.mark.parametrize('camera', camera_motions())
+@pytest.mark.parametrize('kind', kinds())
+def test_shapes_and_conventions(kind, camera):
+    seq = make_sequence(kind, n_frames=12, n_points=300, camera=camera, seed=3,
+                        translation=0.3)
+    F, P = 12, 300
+    assert seq.W.shape == (2 * F, P) and seq.S.shape == (3 * F, P)
+    assert seq.R.shape == (F, 3, 3) and seq.S_world.shape == (3 * F, P)
+    assert seq.translation.shape == (2 * F, 1)
+    assert (seq.n_frames, seq.n_points) == (F, P)
+    assert seq.W.dtype == np.float64 and np.isfinite(seq.W).all()
+    # W rows of frame f == S rows 3f, 3f+1 plus the translation (no noise here)
+    xy = as_frames(seq.S, 3)[:, :2, :].reshape(2 * F, P)
+    np.testing.assert_allclose(seq.W, xy + seq.translation, atol=1e-12)
+    assert np.abs(seq.translation).max() > 0.05          # translation really applied
+    # rotations orthonormal and proper; S = R S_world
+    np.testing.assert_allclose(seq.R @ seq.R.transpose(0, 2, 1), np.tile(np.eye(3), (F, 1, 1)),
+                               atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(seq.R), 1.0, atol=1e-12)
+    np.testing.assert_allclose(to_camera(seq.R, seq.S_world), seq.S, atol=1e-12)
+    # unit-ish scale: about 2 across
+    extent = np.abs(as_frames(seq.S_world, 3) - as_frames(seq.S_world, 3).mean(2, keepdims=True))
+    assert 0.5 < extent.max() < 2.0
+    assert seq.meta['kind'] == kind and seq.meta['camera_motion'] == camera
+
+
+def test_static_camera_has_identity_rotations():
+    seq = make_sequence('waving', n_frames=10, n_points=200, camera='static')
+    np.testing.assert_array_equal(seq.R, np.tile(np.eye(3), (10, 1, 1)))
+    np.testing.assert_array_equal(seq.S, seq.S_world)
+
+
+@pytest.mark.parametrize('camera, max_step, min_range', [
+    ('orbit', 4.0, 40.0), ('wobble', 2.0, 2.0), ('shaky', 12.0, 40.0)])
+def test_camera_paths(camera, max_step, min_range):
+    """Orbit sweeps tens of degrees in small steps; shaky jitters frame to frame."""
+    R = make_sequence('bending', n_frames=60, n_points=10, camera=camera, seed=5).R
+    step = np.degrees(np.arccos(np.clip(
+        (np.trace(R[1:] @ R[:-1].transpose(0, 2, 1), axis1=1, axis2=2) - 1) / 2, -1, 1)))
+    from_first = np.degrees(np.arccos(np.clip(
+        (np.trace(R @ R[0].T, axis1=1, axis2=2) - 1) / 2, -1, 1)))
+    assert step.max() < max_step
+    assert from_first.max() > min_range
+    if camera == 'shaky':
+        assert np.median(step) > 1.5                     # jitter, not a smooth path
+
+
+def test_rotations_from_angles_axes():
+    R = rotations_from_angles([np.pi / 2], [0.0], [0.0])[0]
+    np.testing.assert_allclose(R @ [0, 0, 1], [1, 0, 0], atol=1e-15)   # yaw turns z into x
+    R = rotations_from_angles([0.0], [np.pi / 2], [0.0])[0]
+    np.testing.assert_allclose(R @ [0, 1, 0], [0, 0, 1], atol=1e-15)
+
+
+def test_deterministic_under_seed():
+    a = make_sequence('inflating', 8, 200, noise=0.02, camera='shaky', seed=7, translation=0.1)
+    b = make_sequence('inflating', 8, 200, noise=0.02, camera='shaky', seed=7, translation=0.1)
+    c = make_sequence('inflating', 8, 200, noise=0.02, camera='shaky', seed=8, translation=0.1)
+    for key in ('W', 'S', 'R', 'S_world', 'translation'):
+        np.testing.assert_array_equal(getattr(a, key), getattr(b, key))
+        assert not np.array_equal(getattr(a, key), getattr(c, key))
+    # independent streams: more points leave the camera and the translation path unchanged
+    # (the path is scaled by the shape's extent, which the new points change slightly)
+    d = make_sequence('inflating', 8, 500, noise=0.02, camera='shaky', seed=7, translation=0.1)
+    np.testing.assert_array_equal(a.R, d.R)
+    unit = [x.translation / np.linalg.norm(x.translation) for x in (a, d)]
+    np.testing.assert_allclose(unit[0], unit[1], atol=1e-12)
+
+
+def test_noise_level_matches_r_times_max_w():
+    r = 0.03
+    clean = make_sequence('twisting', 20, 3000, seed=2, translation=0.5)
+    noisy = make_sequence('twisting', 20, 3000, seed=2, translation=0.5, noise=r)
+    np.testing.assert_array_equal(clean.S, noisy.S)
+    expected = r * np.abs(centre(clean.W)[0]).max()
+    assert noisy.noise_sigma == pytest.approx(expected, rel=1e-12)
+    assert clean.noise_sigma == 0.0
+    diff = noisy.W - clean.W
+    # 60,000 samples: the std estimate is good to about 0.3 %, the mean to 0.4 % of sigma
+    assert diff.std() == pytest.approx(expected, rel=0.015)
+    assert abs(diff.mean()) < 0.02 * expected
+    assert noisy.meta['noise'] == r and noisy.meta['noise_sigma'] == noisy.noise_sigma
+
+
+def test_rigid_baseline_is_exact_on_a_rigid_sequence():
+    """Control for the non-rigidity test below: the baseline recovers a rigid shape."""
+    seq = make_sequence('bending', n_frames=30, n_points=400, camera='orbit', seed=1)
+    first = as_frames(seq.S_world, 3)[:1]
+    rigid_world = from_frames(np.repeat(first, 30, axis=0))
+    rigid = from_frames(seq.R @ as_frames(rigid_world, 3))
+    W = from_frames(as_frames(rigid, 3)[:, :2])
+    _, S, residual = rigid_factorisation(W)
+    assert residual < 1e-10
+    assert e3d(S, rigid) < 1e-6
+
+
+@pytest.mark.parametrize('kind', kinds())
+def test_every_kind_deforms_non_rigidly(kind):
+    seq = make_sequence(kind, n_frames=40, n_points=800, camera='orbit', seed=0)
+    sv = np.linalg.svd(seq.S_world, compute_uv=False)
+    assert sv[3] / sv[0] > 0.03                 # rank of the stacked shapes well above 3
+    _, S, residual = rigid_factorisation(seq.W)
+    assert residual > 0.02                      # rank 3 cannot explain the tracks
+    assert e3d(S, seq.S) > 0.05                 # and the best rigid shape is wrong
+
+
+def test_default_sequence():
+    seq = default_sequence()
+    assert seq.W.shape == (120, 3000)
+    assert seq.meta['kind'] == 'bending' and seq.noise_sigma == 0.0
+
+
+def test_unknown_names_raise():
+    with pytest.raises(ValueError, match='unknown kind'):
+        make_sequence('melting')
+    with pytest.raises(ValueError, match='unknown camera'):
+        make_sequence('bending', camera='dolly')
+
+
+def test_save_load_round_trip(tmp_path):
+    seq = make_sequence('articulated', 6, 100, noise=0.01, camera='wobble', seed=4,
+                        translation=0.2)
+    path = tmp_path / 'seq.npz'
+    seq.save_npz(path)
+    with np.load(path) as npz:
+        assert npz['visible'].shape == (6, 100) and npz['visible'].all()
+        meta = json.loads(str(npz['meta']))
+    assert meta['name'] == seq.name and (meta['F'], meta['P']) == (6, 100)
+    assert meta['camera'] == 'orthographic'
+    back = Sequence.load_npz(path)
+    assert back.name == seq.name and back.noise_sigma == seq.noise_sigma
+    for key in ('W', 'S', 'R', 'S_world', 'translation'):
+        np.testing.assert_allclose(getattr(back, key), getattr(seq, key), rtol=0, atol=1e-12)
+    assert back.meta['seed'] == 4 and back.meta['kind'] == 'articulated'
+
+
+def test_load_benchmark_file(dataset):
+    W, S = dataset('akhter_mocap/pickup.npz')        # skips cleanly without the data
+    seq = Sequence.load_npz(data_root() / 'akhter_mocap' / 'pickup.npz')
+    assert seq.name == 'pickup' and seq.meta['F'] == seq.n_frames == 357
+    np.testing.assert_array_equal(seq.W, W)
+    np.testing.assert_array_equal(seq.S, S)
+    assert seq.R is None and seq.S_world is None and seq.translation is None
+    np.testing.assert_allclose(seq.W, as_frames(seq.S, 3)[:, :2].reshape(seq.W.shape), atol=0)
+
+
+def test_observe_without_noise_or_translation_matches_projection():
+    rng = np.random.default_rng(0)
+    S_world = rng.normal(size=(9, 20))
+    R = rotations_from_angles([0.1, 0.2, 0.3], [0.0, 0.1, 0.0], [0.0, 0.0, 0.2])
+    seq = observe('x', S_world, R, rng_translation=rng, rng_noise=rng)
+    np.testing.assert_allclose(seq.W, from_frames(R[:, :2] @ as_frames(S_world, 3)),
+                               atol=1e-14)
+    assert not seq.translation.any()
+
+
+def test_articulated_panels_are_each_rigid():
+    """Articulated: distances within each panel stay fixed, across the hinge they change."""
+    seq = make_sequence('articulated', n_frames=15, n_points=400, camera='orbit', seed=6)
+    X = as_frames(seq.S_world, 3)                                   # (F, 3, P)
+    right = X[0, 0] >= 0    # frame 0 is the flat-open book (both hinge angles 0)
+
+    def spread_of_distances(a, b):
+        d = np.linalg.norm(X[:, :, a][:, :, :, None] - X[:, :, b][:, :, None, :], axis=1)
+        return np.ptp(d, axis=0).max()
+
+    left_idx, right_idx = np.flatnonzero(~right)[:30], np.flatnonzero(right)[:30]
+    assert spread_of_distances(left_idx, left_idx) < 1e-12
+    assert spread_of_distances(right_idx, right_idx) < 1e-12
+    assert spread_of_distances(left_idx, right_idx) > 0.2
