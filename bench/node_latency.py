@@ -80,7 +80,7 @@ def latency(tracks, factory, warm_cls, frames=60):
         pass
     for f in range(frames):
         for window in pipe.add_frame(stamps[f], ids, uv[f]):
-            wall, cpu = time.monotonic(), time.process_time()
+            cpu = time.process_time()
             results = pipe.solve(window)
             if header is not None:
                 for r in results:

@@ -160,22 +160,21 @@ class ReconstructionNode(Node):
         self._blas_limits = threadpool_limits(limits=threads)
 
     def _open_recorder(self, path, qos):
-        """Recorder of the input and output topics, or None (off, or unavailable: logged)."""
+        """A :class:`grass_nrsfm_ros.bag.Recorder` of the input tracks (raw CDR, receive time)
+        and output points (publish time), or None when off. Its writer thread keeps the disk
+        off the solve path; a failure (unwritable path, full disk) is logged once and
+        reconstruction goes on."""
         if not path:
             return None
-        # Integration point: grass_nrsfm_ros.bag.Recorder(path) with add_topic(topic, msgtype),
-        # write(topic, data, t_ns) (CDR bytes or a message), close() and error.
-        try:
-            from grass_nrsfm_ros.bag import Recorder
-            recorder = Recorder(path)
-            for topic in (self.tracks_sub.topic_name, self.points_pub.topic_name):
-                recorder.add_topic(topic, POINTCLOUD2)
-        except Exception as exc:                     # ImportError, OSError, bag errors
-            self.get_logger().error(f'recording to {path!r} is off: {exc}')
-            return None
+        from grass_nrsfm_ros.bag import Recorder
+
+        recorder = Recorder(path, on_error=self.get_logger().error)
+        for topic in (self.tracks_sub.topic_name, self.points_pub.topic_name):
+            recorder.add_topic(topic, POINTCLOUD2)
         self.create_subscription(PointCloud2, 'tracks', self._record_tracks, qos, raw=True,
                                  callback_group=MutuallyExclusiveCallbackGroup())
-        self.get_logger().info(f'recording tracks and points to {path}')
+        if recorder.error is None:
+            self.get_logger().info(f'recording tracks and points to {path}')
         return recorder
 
     # -- input ----------------------------------------------------------------------------------
@@ -191,8 +190,8 @@ class ReconstructionNode(Node):
             return self._drop(stamp, 'empty tracks cloud (no finite points)')
         invalid = int(msg.width) * int(msg.height) - tracks.ids.size
         if invalid:
-            self._log.warning(f'tracks cloud at {stamp} ns: ignored {invalid} points with non-finite '
-                       'u/v')
+            self._log.warning(f'tracks cloud at {stamp} ns: ignored {invalid} points with '
+                              'non-finite u/v')
         resets = self.pipeline.stats['resets']
         try:
             windows = self.pipeline.add_frame(stamp, tracks.ids, tracks.uv, msg.header.frame_id)

@@ -22,7 +22,7 @@ from grass_nrsfm_ros.nrsfm.measurement import as_frames
 from grass_nrsfm_ros.nrsfm.metrics import e3d, e3d_akhter
 
 rclpy = pytest.importorskip('rclpy')
-from builtin_interfaces.msg import Time  # noqa: E402
+from builtin_interfaces.msg import Time  # noqa: E402, I100
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from sensor_msgs.msg import PointCloud2, PointField  # noqa: E402
@@ -54,7 +54,8 @@ def ros_env(tmp_path, monkeypatch):
 class Feeder:
     """This process's side: publishes ``tracks``, collects ``points`` and ``/diagnostics``."""
 
-    def __init__(self, namespace):
+    def __init__(self, namespace, subscribers=1):
+        self.subscribers = subscribers              # the node's tracks subscriptions
         self.context = rclpy.Context()
         rclpy.init(context=self.context)
         self.node = rclpy.create_node('feeder', namespace=namespace, context=self.context)
@@ -83,7 +84,7 @@ class Feeder:
         return condition()
 
     def connected(self):
-        return (self.pub.get_subscription_count() > 0
+        return (self.pub.get_subscription_count() >= self.subscribers
                 and self.node.count_publishers(self.node.get_namespace() + '/points') > 0)
 
     def close(self):
@@ -94,16 +95,20 @@ class Feeder:
 
 
 @pytest.fixture
-def node_process(ros_env, tmp_path):
-    """Start the node; yield (process, log path, feeder); stop it with SIGINT."""
+def node_process(ros_env, tmp_path, request):
+    """Start the node (extra ROS arguments: indirect parameter); yield (process, log path,
+    feeder); stop it with SIGINT."""
     log = tmp_path / 'node.log'
     namespace = f'/test_{os.getpid()}_{random.randrange(10 ** 6)}'    # in case domains collide
+    args = getattr(request, 'param', ())
+    extra = [a.format(tmp=tmp_path) for a in args]
     with open(log, 'w') as out:
         proc = subprocess.Popen(
             [sys.executable, '-c', LAUNCH, '--ros-args', '-r', f'__ns:={namespace}',
-             '-p', 'frame_id:=cam_optical'],
+             '-p', 'frame_id:=cam_optical', *extra],
             cwd=TEST_DIR, env=ros_env, stdout=out, stderr=subprocess.STDOUT)
-    feeder = Feeder(namespace)
+    recording = any(a.startswith('record_path:={tmp}') for a in args)
+    feeder = Feeder(namespace, subscribers=2 if recording else 1)
     try:
         assert feeder.wait_for(feeder.connected, 30), log.read_text()
         yield proc, log, feeder
@@ -150,7 +155,9 @@ def stacked(points, ids):
     return np.vstack(blocks)
 
 
-def test_node_reconstructs_a_30hz_stream(node_process):
+@pytest.mark.parametrize('node_process', [('-p', 'record_path:={tmp}/recording')],
+                         indirect=True)
+def test_node_reconstructs_a_30hz_stream(node_process, tmp_path):
     proc, log, feeder = node_process
     W, S, ids = make_sequence(F=60, noise=0.5)
     publish_at_30hz(feeder, good_frames(W, ids))
@@ -169,6 +176,17 @@ def test_node_reconstructs_a_30hz_stream(node_process):
             'tracks in window', 'dropped windows', 'dropped messages'} <= keys
     proc.send_signal(signal.SIGINT)
     assert proc.wait(15) == 0
+    # the recording, read back by rosbags: every input and output message, in order
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import get_typestore, Stores
+    with AnyReader([tmp_path / 'recording'],
+                   default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+        recorded = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages()
+                    if c.topic.endswith('/points')]
+    namespace = feeder.node.get_namespace()
+    assert counts == {f'{namespace}/tracks': 60, f'{namespace}/points': 60}
+    assert [stamp_of(m) for m in recorded] == [stamp_of(m) for m in points]
 
 
 def malformed(good, kind):
@@ -207,9 +225,12 @@ def with_non_finite(good):
 LOG_LINES = {'missing': "missing field 'track_id'", 'datatype': "field 'u' has datatype",
              'truncated': 'layout needs', 'duplicate': 'duplicate track ids',
              'empty': 'empty tracks cloud', 'nan': 'points with non-finite u/v',
-             'stamp': 'duplicate stamp', 'reset': 'all track ids changed'}
+             'stamp': 'duplicate stamp', 'reset': 'all track ids changed',
+             'record': 'recording to /proc/no_such_dir/recording failed'}
 
 
+@pytest.mark.parametrize('node_process', [('-p', 'record_path:=/proc/no_such_dir/recording')],
+                         indirect=True)
 def test_bad_input_is_logged_once_and_good_frames_still_published(node_process):
     proc, log, feeder = node_process
     W, S, ids = make_sequence(F=105, noise=0.5)

@@ -66,7 +66,6 @@ def tomasi_kanade(Wc):
     """Rigid factorisation of centred ``Wc: (2F, P)``: cameras ``(F, 2, 3)``, shape ``(3, P)``."""
     U, s, Vt = np.linalg.svd(Wc, full_matrices=False)
     M = U[:, :3] * np.sqrt(s[:3])
-    X = np.sqrt(s[:3])[:, None] * Vt[:3]
     m = M.reshape(-1, 2, 3)
 
     def row(a, b):            # coefficients of a^T Q b for symmetric Q (6 unknowns)
@@ -212,7 +211,8 @@ def test_warm_start_carries_previous_solution_on_overlap():
     old = as_frames(first.S, 3)[10:30, 2, :]
     np.testing.assert_allclose(depth, old - old.mean(axis=1, keepdims=True), atol=1e-9)
     # x, y of the start are the centred tracks of the new window
-    np.testing.assert_allclose(as_frames(init.S, 3)[:, :2, :], as_frames(centre(windows[1].W)[0], 2))
+    np.testing.assert_allclose(as_frames(init.S, 3)[:, :2, :],
+                               as_frames(centre(windows[1].W)[0], 2))
 
 
 def test_warm_start_fills_new_tracks_from_nearest_old_track():
