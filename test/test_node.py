@@ -61,7 +61,7 @@ class Feeder:
         self.node = rclpy.create_node('feeder', namespace=namespace, context=self.context)
         self.pub = self.node.create_publisher(PointCloud2, 'tracks', 10)
         self.points, self.diagnostics = [], []
-        self.node.create_subscription(PointCloud2, 'points', self.points.append, 100)
+        self.node.create_subscription(PointCloud2, 'points', self.points.append, 10)
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 10)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
