@@ -25,6 +25,10 @@ RANK_TOL = 1e-6
 N_STARTS = 8
 #: alternating-projection sweeps from each start before the nonlinear refinement
 N_PROJECTION_SWEEPS = 30
+#: choose_rank: a next rank that keeps more than this share of the residual adds nothing
+PLATEAU_RATIO = 0.8
+#: choose_rank: a residual below this is an exact fit (noise-free data of that rank)
+EXACT_RESIDUAL = 1e-7
 #: default candidate ranks for K='auto'
 DEFAULT_CANDIDATES = tuple(range(1, 7))
 
@@ -216,7 +220,7 @@ def sign_continuity(R):
     coefficient; of the two, each frame keeps the one nearer (in angle) to the previous frame's
     choice. ``R: (F, 3, 3)`` -> ``(F, 3, 3)``.
     """
-    D = np.array([1.0, 1.0, -1.0])
+    D = np.array([-1.0, -1.0, 1.0])
     rel = R[1:] @ R[:-1].transpose(0, 2, 1)                        # R_f R_{f-1}^T
     keep = np.trace(rel, axis1=1, axis2=2)
     flipped = np.einsum('fii,i->f', rel, D)                         # trace(D R_f R_{f-1}^T)
@@ -270,8 +274,10 @@ def _rigid(W):
         info['fallback'] = f'W has rank {rank} < 3 (static camera or planar scene)'
     if R is None:
         R = np.broadcast_to(np.eye(3), (F, 3, 3)).copy()
-    X = _world_shape(R, Wn)
-    S = from_frames(R @ X[None]) * scale
+        depth = np.zeros((F, 1, Wn.shape[1]))
+        S = from_frames(np.concatenate([as_frames(Wn, 2), depth], axis=1)) * scale
+        return R, S, info
+    S = from_frames(R @ _world_shape(R, Wn)[None]) * scale
     return R, S, info
 
 
@@ -280,7 +286,7 @@ def rigid_factorisation(W):
 
     Returns ``(R: (F, 3, 3), S: (3F, P))`` with S the rigid shape in each frame's camera
     coordinates (centred, in W's units). Rank-deficient input (static camera, planar scene)
-    gives identity rotations and the least-squares shape, never NaN.
+    gives identity rotations and the flat shapes ``[W_f; 0]``, never NaN.
     """
     R, S, _ = _rigid(W)
     return R, S
@@ -385,12 +391,33 @@ def estimate_rotations(W, K='auto', *, candidates=DEFAULT_CANDIDATES, random_sta
         R, _, info = _rigid(W)
         scores['fallback'] = info.get('fallback', 'no rank gave rotations') + '; rigid used'
         return RotationEstimate(R=R, K=1, scores=scores)
-    chosen, rule = choose_rank(scores, results, svd[3])
+    if K == 'auto':
+        chosen, rule = choose_rank({k: scores[k]['residual'] for k in results})
+    else:
+        chosen, rule = int(K), f'K={int(K)} given'
     scores['rule'] = rule
     return RotationEstimate(R=results[chosen], K=chosen, scores=scores)
 
 
-def choose_rank(scores, results, Wn):
-    """Pick K from per-K diagnostics. Returns ``(K, description)``. (placeholder)"""
-    ks = sorted(results)
-    return (2 if 2 in ks else ks[0]), 'placeholder'
+def choose_rank(residuals, *, plateau=PLATEAU_RATIO, exact=EXACT_RESIDUAL):
+    """Pick the rotation rank K from the best orthonormality residual at each K.
+
+    ``residuals``: ``{K: rms residual}`` from the nested search (non-increasing in K). Rule:
+    the smallest K whose residual is already exact (``< exact``) or that the next feasible rank
+    improves by less than the factor ``plateau`` (``r_{K+1} > plateau * r_K``): past the true
+    rank the extra columns only fit noise, which lowers the residual by a few percent, while
+    below it every added basis shape removes a large share. Without a plateau, the largest K.
+    Over-estimating K costs little with nested starts, under-estimating costs much, so the rule
+    leans high. Returns ``(K, reason)``.
+    """
+    ks = sorted(residuals)
+    for k, nxt in zip(ks, ks[1:] + [None]):
+        r = residuals[k]
+        if r < exact:
+            return k, f'K={k}: residual {r:.2e} below {exact:g} (exact fit)'
+        if nxt is None:
+            return k, f'K={k}: largest feasible rank, no plateau before it'
+        ratio = residuals[nxt] / r
+        if ratio > plateau:
+            return k, (f'K={k}: residual plateau, r{nxt}/r{k} = {ratio:.2f} > {plateau}')
+    raise ValueError('no residuals')
