@@ -22,7 +22,7 @@ from .measurement import as_frames, centre, from_frames, track_scale, validate_t
 #: ratio to the first singular value below which W is treated as having lower rank
 RANK_TOL = 1e-6
 #: number of seeded starts of the intersection search per K
-N_STARTS = 8
+N_STARTS = 2
 #: alternating-projection sweeps from each start before the nonlinear refinement
 N_PROJECTION_SWEEPS = 30
 #: choose_rank: a next rank that keeps more than this share of the residual adds nothing
