@@ -89,7 +89,7 @@ def test_dai_rotations_with_noise_within_a_few_degrees(K_true):
     assert rotation_error(est.R, R_true) < 6.0      # measured 2.2 to 4.0 deg at 2 % noise
 
 
-@pytest.mark.parametrize('K_true, seed', [(1, 30), (2, 31), (3, 32)])
+@pytest.mark.parametrize('K_true, seed', [(1, 30), (2, 31), (3, 32), (4, 33)])
 def test_auto_rank_is_near_oracle_on_noisy_synthetic(K_true, seed):
     W, S, _ = synthetic(K=K_true, noise=0.02, seed=seed)
     auto = estimate_rotations(W, candidates=range(1, 5))
@@ -108,10 +108,13 @@ def test_auto_rank_on_noise_free_data_stops_at_exact_fit():
 
 
 def test_choose_rank_rule():
-    assert choose_rank({1: 0.3, 2: 0.03, 3: 0.029, 4: 0.028})[0] == 2
-    assert choose_rank({1: 0.3, 2: 0.1, 3: 0.05})[0] == 3          # no plateau: largest
-    assert choose_rank({1: 0.1, 2: 1e-12, 3: 1e-13})[0] == 2       # exact fit
-    assert choose_rank({1: 0.01, 2: 0.0099})[0] == 1
+    assert choose_rank({1: 0.3, 2: 0.03, 3: 0.029, 4: 0.028}, 100)[0] == 2
+    assert choose_rank({1: 0.3, 2: 0.1, 3: 0.05}, 100)[0] == 3          # no plateau: largest
+    assert choose_rank({1: 0.1, 2: 1e-12, 3: 1e-13}, 100)[0] == 2       # exact fit
+    assert choose_rank({1: 0.01, 2: 0.0099}, 100)[0] == 1
+    # a weak basis shape (12 % drop) counts on a long sequence, not on a short one
+    assert choose_rank({1: 0.3, 2: 0.01, 3: 0.0088, 4: 0.0087}, 300)[0] == 3
+    assert choose_rank({1: 0.3, 2: 0.01, 3: 0.0088, 4: 0.0087}, 20)[0] == 2
 
 
 def test_sign_continuity_undoes_random_flips():

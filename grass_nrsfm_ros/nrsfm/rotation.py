@@ -25,8 +25,8 @@ RANK_TOL = 1e-6
 N_STARTS = 2
 #: alternating-projection sweeps from each start before the nonlinear refinement
 N_PROJECTION_SWEEPS = 30
-#: choose_rank: a next rank that keeps more than this share of the residual adds nothing
-PLATEAU_RATIO = 0.8
+#: choose_rank: a next rank keeping more than this share of the noise-only ratio is noise
+PLATEAU_RATIO = 0.93
 #: choose_rank: a residual below this is an exact fit (noise-free data of that rank)
 EXACT_RESIDUAL = 1e-7
 #: default candidate ranks for K='auto'
@@ -389,26 +389,39 @@ def estimate_rotations(W, K='auto', *, candidates=DEFAULT_CANDIDATES, random_sta
     results = {k: r for k, r in results.items() if k in keep}
     if not results:
         R, _, info = _rigid(W)
-        scores['fallback'] = info.get('fallback', 'no rank gave rotations') + '; rigid used'
+        failed = '; '.join(f'K={k}: {scores[k]["error"]}' for k in keep if k in scores)
+        scores['fallback'] = info.get('fallback', failed or 'no rank gave rotations')
+        scores['fallback'] += '; rigid factorisation used'
         return RotationEstimate(R=R, K=1, scores=scores)
     if K == 'auto':
-        chosen, rule = choose_rank({k: scores[k]['residual'] for k in results})
+        chosen, rule = choose_rank({k: scores[k]['residual'] for k in results}, F)
     else:
         chosen, rule = int(K), f'K={int(K)} given'
     scores['rule'] = rule
     return RotationEstimate(R=results[chosen], K=chosen, scores=scores)
 
 
-def choose_rank(residuals, *, plateau=PLATEAU_RATIO, exact=EXACT_RESIDUAL):
+def noise_ratio(K, n_frames):
+    """Expected ``r_{K+1} / r_K`` when rank K already explains W and the rest is noise.
+
+    The refined ``G_k`` has ``9K - 4`` effective parameters (9K entries less a global rotation
+    and scale) against ``2F`` residuals, so under noise alone each extra basis shape lowers the
+    RMS residual by the factor ``sqrt((2F - 9K - 5) / (2F - 9K + 4))``.
+    """
+    dof = 2 * n_frames - (9 * K - 4)
+    return float(np.sqrt(max(dof - 9, 1) / max(dof, 1)))
+
+
+def choose_rank(residuals, n_frames, *, plateau=PLATEAU_RATIO, exact=EXACT_RESIDUAL):
     """Pick the rotation rank K from the best orthonormality residual at each K.
 
-    ``residuals``: ``{K: rms residual}`` from the nested search (non-increasing in K). Rule:
-    the smallest K whose residual is already exact (``< exact``) or that the next feasible rank
-    improves by less than the factor ``plateau`` (``r_{K+1} > plateau * r_K``): past the true
-    rank the extra columns only fit noise, which lowers the residual by a few percent, while
-    below it every added basis shape removes a large share. Without a plateau, the largest K.
-    Over-estimating K costs little with nested starts, under-estimating costs much, so the rule
-    leans high. Returns ``(K, reason)``.
+    ``residuals``: ``{K: rms residual}`` from the nested search (non-increasing in K);
+    ``n_frames``: F. Rule: the smallest K whose residual is already exact (``< exact``) or
+    that the next rank K' improves by no more than noise would
+    (``r_K' / r_K > plateau * noise_ratio``, per rank step): past the true rank the extra
+    columns only fit noise, while below it every added basis shape removes a large share.
+    Without a plateau, the largest K. Over-estimating K costs little with nested starts and
+    under-estimating costs much, so the rule leans high. Returns ``(K, reason)``.
     """
     ks = sorted(residuals)
     for k, nxt in zip(ks, ks[1:] + [None]):
@@ -418,6 +431,8 @@ def choose_rank(residuals, *, plateau=PLATEAU_RATIO, exact=EXACT_RESIDUAL):
         if nxt is None:
             return k, f'K={k}: largest feasible rank, no plateau before it'
         ratio = residuals[nxt] / r
-        if ratio > plateau:
-            return k, (f'K={k}: residual plateau, r{nxt}/r{k} = {ratio:.2f} > {plateau}')
+        expected = np.prod([noise_ratio(j, n_frames) for j in range(k, nxt)])
+        if ratio > plateau * expected:
+            return k, (f'K={k}: residual plateau, r{nxt}/r{k} = {ratio:.3f} > {plateau} x '
+                       f'{expected:.3f} (noise-only ratio)')
     raise ValueError('no residuals')
