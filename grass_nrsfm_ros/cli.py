@@ -53,4 +53,7 @@ def main(argv=None):
 
 
 if __name__ == '__main__':
-    sys.exit(main())
+    # Run as `python -m grass_nrsfm_ros.cli`: use the importable module's main, so that its
+    # UserError (not __main__.UserError) is the one caught.
+    from grass_nrsfm_ros.cli import main as _main
+    sys.exit(_main())

@@ -18,7 +18,7 @@ from grass_nrsfm_ros.cli import UserError
 def add_arguments(parser):
     parser.add_argument('input', help='.npz with W (2F, P), or a tracks bag')
     parser.add_argument('-o', '--output', required=True, help='output .npz (or bag directory)')
-    parser.add_argument('--config', help='params.yaml (the node\'s file works too)')
+    parser.add_argument('--config', help="params.yaml (the node's file works too)")
     parser.add_argument('--topic', default='/tracks', help='tracks topic when IN is a bag')
     parser.add_argument('--quiet', action='store_true', help='no progress display')
 
@@ -84,9 +84,26 @@ def reconstruct_npz(args):
     return 0
 
 
+def reconstruct_bag_file(args):
+    """The node's sliding-window pipeline over a tracks bag, offline, into an output bag."""
+    from grass_nrsfm_ros.bag import reconstruct_bag, text_progress
+    from grass_nrsfm_ros.params import load_config, solver_kwargs, window_kwargs
+    from grass_nrsfm_ros.pipeline import default_solver_factory, SlidingWindow
+
+    config = load_config(args.config) if args.config else {}
+    pipeline = SlidingWindow(default_solver_factory(**solver_kwargs(config)),
+                             **window_kwargs(config),
+                             metres_per_pixel=config.get('metres_per_pixel', 1.0))
+    report = reconstruct_bag(args.input, args.output, pipeline, topic=args.topic,
+                             progress=None if args.quiet else text_progress())
+    print(f'{args.input}: {report.frames_in} frames in, {report.frames_out} reconstructed in '
+          f'{report.windows} windows, {report.seconds:.1f} s -> {args.output}')
+    for line in report.refused:
+        print(f'refused: {line}', file=sys.stderr)
+    return 0
+
+
 def run(args):
     if Path(args.input).suffix == '.npz':
         return reconstruct_npz(args)
-    from grass_nrsfm_ros.bag import reconstruct_bag
-    return reconstruct_bag(args.input, args.output, config_path=args.config, topic=args.topic,
-                           progress=not args.quiet)
+    return reconstruct_bag_file(args)

@@ -1,0 +1,103 @@
+"""Scale: solve time (wall and CPU) and peak memory against P (at F=30 and F=100) and against F,
+for ours and the baselines, each case in its own process; the growth exponents (log-log least
+squares); and for ours the time per ADMM iteration over the time of one economy SVD of S# of the
+same size.
+"""
+import json
+from pathlib import Path
+import subprocess
+import sys
+import tempfile
+
+import numpy as np
+
+from . import common, plot
+
+METHODS = ('ours', 'rigid', 'bmm', 'pta')
+
+
+def grid(mode):
+    """``[(sweep, F, P)]``: P sweeps at fixed F, then an F sweep at fixed P."""
+    if mode.name == 'smoke':
+        return [('P', 10, 500)]
+    p_values = mode.pick(None, (1000, 3000, 10000), (1000, 3000, 10000, 30000, 70000))
+    f_fixed = mode.pick(None, (30,), (30, 100))
+    f_values = mode.pick(None, (10, 30, 60), (10, 30, 60, 100, 200))
+    p_fixed = mode.pick(None, 1000, 3000)
+    return ([('P', F, P) for F in f_fixed for P in p_values]
+            + [('F', F, p_fixed) for F in f_values])
+
+
+def run_worker(W_path, method, timeout):
+    cmd = [sys.executable, '-m', 'bench.scale_worker', str(W_path), method]
+    try:
+        proc = subprocess.run(cmd, cwd=common.REPO, capture_output=True, text=True,
+                              timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return None, f'timed out after {timeout} s'
+    if proc.returncode != 0:
+        return None, (proc.stderr.strip().splitlines() or ['failed'])[-1]
+    return json.loads(proc.stdout.strip().splitlines()[-1]), None
+
+
+def exponents(rows):
+    """Growth exponents of CPU time and of extra memory: per method, per sweep and fixed size."""
+    out = []
+    keys = sorted({(r['method'], r['sweep'], r['F'] if r['sweep'] == 'P' else r['P'])
+                   for r in rows})
+    for method, sweep, fixed in keys:
+        sel = [r for r in rows if r['method'] == method and r['sweep'] == sweep
+               and (r['F'] if sweep == 'P' else r['P']) == fixed]
+        x = [r[sweep] for r in sel]
+        out.append({'method': method, 'against': sweep,
+                    'fixed': {'F' if sweep == 'P' else 'P': fixed}, 'points': len(sel),
+                    'time_exponent': common.loglog_slope(x, [r['seconds_cpu'] for r in sel]),
+                    'memory_exponent': common.loglog_slope(
+                        x, [r['solve_extra_mb'] for r in sel])})
+    return out
+
+
+def plots(rows, out_dir):
+    names = []
+    for sweep, fixed_key in (('P', 'F'), ('F', 'P')):
+        for fixed in sorted({r[fixed_key] for r in rows if r['sweep'] == sweep}):
+            sel = [r for r in rows if r['sweep'] == sweep and r[fixed_key] == fixed]
+            for what, key, logy in (('time', 'seconds_cpu', True),
+                                    ('memory', 'solve_extra_mb', False)):
+                series = {m: ([np.log10(r[sweep]) for r in sel if r['method'] == m],
+                              [r[key] for r in sel if r['method'] == m]) for m in METHODS}
+                path = plot.line_plot(
+                    out_dir / f'scale_{what}_vs_{sweep}_{fixed_key}{fixed}.png', series,
+                    title=f'{what} vs {sweep} ({fixed_key}={fixed})', xlabel=f'log10 {sweep}',
+                    ylabel='CPU s' if what == 'time' else 'extra peak RSS MiB', logy=logy)
+                if path:
+                    names.append(path.name)
+    return names
+
+
+def run(mode):
+    timeout = mode.pick(120, 300, 1800)
+    rows, skipped = [], []
+    methods = [m for m in METHODS if not common.missing(m)]
+    skipped += [{'method': m, 'why': common.missing(m)} for m in METHODS if m not in methods]
+    with tempfile.TemporaryDirectory(prefix='bench_scale_') as tmp:
+        for sweep, F, P in grid(mode):
+            W, _ = common.synthetic('bending', F, P)
+            W_path = Path(tmp) / f'W_{F}_{P}.npy'
+            np.save(W_path, W)
+            del W
+            for method in methods:
+                common.log(f'scale: F={F} P={P} {method}')
+                row, why = run_worker(W_path, method, timeout)
+                if row is None:
+                    skipped.append({'method': method, 'F': F, 'P': P, 'why': why})
+                else:
+                    rows.append({'sweep': sweep, **row})
+    out = {'rows': rows, 'skipped': skipped, 'exponents': exponents(rows),
+           'notes': ['each case runs in a fresh process; solve_extra_mb = peak RSS after the '
+                     'solve minus peak RSS after loading W (0 when the solve stays below it)',
+                     'iteration_over_svd: seconds per ADMM iteration / one economy SVD of the '
+                     'F x 3P matrix S#']}
+    if mode.name != 'smoke':
+        out['plots'] = plots(rows, mode.out_dir)
+    return out

@@ -1,0 +1,55 @@
+"""One scale case in a fresh process (clean peak memory): ``python -m bench.scale_worker
+W.npy METHOD`` prints one JSON line with wall/CPU seconds, peak resident memory before and after
+the solve, and for 'ours' the time per ADMM iteration against one economy SVD of S# (F x 3P).
+"""
+import json
+import resource
+import sys
+import time
+
+import numpy as np
+
+from . import common
+
+
+def maxrss_mb():
+    """Peak resident set size of this process so far, MiB (Linux reports KiB)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def svd_seconds(X, repeats=3):
+    """Best of ``repeats`` wall times of ``np.linalg.svd(X, full_matrices=False)``."""
+    best = np.inf
+    for _ in range(repeats):
+        t = time.perf_counter()
+        np.linalg.svd(X, full_matrices=False)
+        best = min(best, time.perf_counter() - t)
+    return best
+
+
+def main(argv):
+    path, method = argv
+    W = np.load(path)
+    F, P = W.shape[0] // 2, W.shape[1]
+    before = maxrss_mb()
+    out, wall, cpu = common.timed(common.solve, method, W)
+    row = {'method': method, 'F': F, 'P': P, 'seconds_wall': wall, 'seconds_cpu': cpu,
+           'rss_before_mb': before, 'rss_peak_mb': maxrss_mb(), 'W_mb': W.nbytes / 2 ** 20}
+    row['solve_extra_mb'] = max(0.0, row['rss_peak_mb'] - before)
+    if method == 'ours':
+        from grass_nrsfm_ros.nrsfm.measurement import as_frames, to_world
+        report = out['report']
+        shape_s = (report.seconds or {}).get('shape', wall)
+        iters = max(int(report.iterations), 1)
+        S_sharp = as_frames(to_world(out['R'], out['S']), 3).reshape(F, 3 * P)
+        svd = svd_seconds(S_sharp)
+        row.update({'iterations': report.iterations, 'seconds_shape': shape_s,
+                    'seconds_per_iteration': shape_s / iters, 'svd_S_sharp_seconds': svd,
+                    'iteration_over_svd': shape_s / iters / svd,
+                    'report': common.report_summary(report)})
+    print(json.dumps(common.jsonable(row)))
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main(sys.argv[1:]))

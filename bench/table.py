@@ -1,0 +1,165 @@
+"""``python -m bench.table [--results DIR] [--write README.md]``: the README's benchmark tables
+from the JSON in bench/results, printed as markdown between the markers
+``<!-- bench-table:start -->`` and ``<!-- bench-table:end -->``; ``--write FILE`` replaces the
+lines between those markers in FILE instead.
+"""
+import argparse
+import json
+from pathlib import Path
+import sys
+
+from . import common
+
+START, END = '<!-- bench-table:start -->', '<!-- bench-table:end -->'
+METHOD_NAMES = {'ours': 'ours', 'rigid': 'rigid', 'bmm': 'BMM', 'pta': 'PTA',
+                'pta_dai': 'PTA (Dai R)'}
+
+
+def load(results, suite):
+    path = Path(results) / f'{suite}.json'
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def fmt(v, digits=4):
+    return '-' if v is None else f'{v:.{digits}f}'
+
+
+def accuracy_table(doc):
+    rows = doc['rows']
+    methods = [m for m in METHOD_NAMES if any(r['method'] == m for r in rows)]
+    seqs = list(dict.fromkeys(r['sequence'] for r in rows))
+    lines = ['| sequence | F x P | ' + ' | '.join(METHOD_NAMES[m] for m in methods)
+             + ' | published PTA / BMM |', '|---|---|' + '---|' * (len(methods) + 1)]
+    for seq in seqs:
+        by = {r['method']: r for r in rows if r['sequence'] == seq}
+        any_row = next(iter(by.values()))
+        cells = []
+        for m in methods:
+            r = by.get(m)
+            if r is None:
+                cells.append('-')
+                continue
+            cell = fmt(r['e3d'])
+            if r.get('e3d_akhter') is not None:
+                cell += f' (A {fmt(r["e3d_akhter"])})'
+            if r.get('K_oracle'):
+                cell += f' K={r["K_oracle"]}'
+            cells.append(cell)
+        pub = [by[m]['published']['value'] for m in ('pta', 'bmm')
+               if m in by and by[m].get('published')]
+        published = ' / '.join(fmt(v) for v in pub) + ' (A)' if pub else '-'
+        lines.append(f'| {seq} | {any_row["F"]} x {any_row["P"]} | ' + ' | '.join(cells)
+                     + f' | {published} |')
+    return lines
+
+
+def noise_table(doc):
+    rows = doc['rows']
+    methods = [m for m in METHOD_NAMES if any(r['method'] == m for r in rows)]
+    ratios = sorted({r['r'] for r in rows})
+    lines = [f'Noise on {doc.get("sequence")} ({doc.get("F")} x {doc.get("P")}), e3D mean '
+             '± std over repeats:', '',
+             '| r | ' + ' | '.join(METHOD_NAMES[m] for m in methods) + ' |',
+             '|---|' + '---|' * len(methods)]
+    for ratio in ratios:
+        cells = []
+        for m in methods:
+            r = next((x for x in rows if x['method'] == m and x['r'] == ratio), None)
+            cells.append('-' if r is None else f'{fmt(r["e3d_mean"])} ± {fmt(r["e3d_std"])}')
+        lines.append(f'| {ratio:g} | ' + ' | '.join(cells) + ' |')
+    return lines
+
+
+def parameters_table(doc):
+    lines = [f'Ours on {doc.get("sequence")} ({doc.get("F")} x {doc.get("P")}):', '',
+             '| setting | e3D | CPU s | groups |', '|---|---|---|---|']
+    for r in doc['rows']:
+        lines.append(f'| {r["param"]} = {r["value"]} | {fmt(r["e3d"])} | '
+                     f'{fmt(r["seconds_cpu"], 2)} | {r.get("n_groups", "-")} |')
+    return lines
+
+
+def scale_table(doc):
+    lines = ['| method | against | fixed | CPU-time exponent | memory exponent | largest case '
+             '| CPU s | extra MiB |', '|---|---|---|---|---|---|---|---|']
+    for e in doc.get('exponents', []):
+        sweep = e['against']
+        (fk, fv), = e['fixed'].items()
+        sel = [r for r in doc['rows'] if r['method'] == e['method'] and r['sweep'] == sweep
+               and r[fk] == fv]
+        big = max(sel, key=lambda r: r[sweep])
+        lines.append(f'| {METHOD_NAMES[e["method"]]} | {sweep} | {fk}={fv} | '
+                     f'{fmt(e["time_exponent"], 2)} | {fmt(e["memory_exponent"], 2)} | '
+                     f'{big["F"]} x {big["P"]} | {fmt(big["seconds_cpu"], 2)} | '
+                     f'{fmt(big["solve_extra_mb"], 0)} |')
+    ratios = [r for r in doc['rows'] if r.get('iteration_over_svd') is not None]
+    if ratios:
+        lines += ['', 'Ours, time per ADMM iteration / one economy SVD of S# (F x 3P): '
+                  + ', '.join(f'{r["F"]}x{r["P"]}: {r["iteration_over_svd"]:.1f}'
+                              for r in ratios)]
+    return lines
+
+
+def streaming_table(doc):
+    lines = ['| tracks | solver | window/stride | fps | latency mean s | latency max s |',
+             '|---|---|---|---|---|---|']
+    for r in doc['rows']:
+        lines.append(f'| {r["P"]} | {r["solver"]} | {r["window_size"]}/{r["window_stride"]} | '
+                     f'{fmt(r["fps"], 1)} | {fmt(r["latency_mean_s"], 2)} | '
+                     f'{fmt(r["latency_max_s"], 2)} |')
+    return lines
+
+
+SECTIONS = (('accuracy', 'Accuracy (e3D; "A": Akhter\'s metric, the one of the published mocap '
+             'numbers; PTA K chosen against ground truth)', accuracy_table),
+            ('noise', 'Noise', noise_table),
+            ('parameters', 'Parameters and ablation', parameters_table),
+            ('scale', 'Scale (fresh process per case)', scale_table),
+            ('streaming', 'Streaming (pipeline.SlidingWindow, no ROS)', streaming_table))
+
+
+def markdown(results):
+    out = [START, '']
+    for suite, title, make in SECTIONS:
+        doc = load(results, suite)
+        if not doc or not doc.get('rows'):
+            continue
+        env = doc.get('environment', {})
+        out += [f'**{title}** ({doc["mode"]} run, {env.get("date", "?")}, commit '
+                f'{env.get("git", "?")}, {env.get("cpus", "?")} CPUs)', '']
+        out += make(doc) + ['']
+    out.append(END)
+    return '\n'.join(out)
+
+
+def rewrite(path, text):
+    """Replace the marker block of ``path`` with ``text``; False if the markers are missing."""
+    lines = Path(path).read_text().splitlines()
+    try:
+        i, j = lines.index(START), lines.index(END)
+    except ValueError:
+        return False
+    if j < i:
+        return False
+    Path(path).write_text('\n'.join(lines[:i] + text.splitlines() + lines[j + 1:]) + '\n')
+    return True
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(prog='python -m bench.table', description=__doc__)
+    parser.add_argument('--results', default=str(common.RESULTS), help='folder of suite JSON')
+    parser.add_argument('--write', metavar='FILE', help='rewrite the marker block of FILE')
+    args = parser.parse_args(argv)
+    text = markdown(args.results)
+    if args.write:
+        if not rewrite(args.write, text):
+            print(f'{args.write}: markers {START} ... {END} not found', file=sys.stderr)
+            return 1
+        print(f'{args.write}: benchmark tables rewritten')
+        return 0
+    print(text)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

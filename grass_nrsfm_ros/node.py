@@ -1,0 +1,328 @@
+"""The ROS 2 node: wiring only. ``tracks`` (PointCloud2: track_id, u, v per camera frame) in,
+``points`` (PointCloud2: x, y, z, track_id per reconstructed frame) and ``/diagnostics`` out.
+
+The algorithm lives in :mod:`grass_nrsfm_ros.pipeline` (windows, warm start, alignment) and
+:mod:`grass_nrsfm_ros.nrsfm`; here: parameters (:mod:`grass_nrsfm_ros.params`), decoding,
+one worker thread for solves, publishing, logging, recording.
+
+Threading: a MultiThreadedExecutor runs the input subscription (its own mutually exclusive
+group, so frames stay in order) and the housekeeping; a closed window is handed to one worker
+thread and the callback returns at once. While a solve runs, newer windows replace the one
+waiting (counted as dropped windows): the node skips to the newest window instead of queueing,
+and the pipeline still publishes every frame that window covers.
+
+Start: ``ros2 run grass_nrsfm_ros node --ros-args ...``, ``grass-nrsfm node --ros-args ...``
+or ``python -m grass_nrsfm_ros.node --ros-args ...``.
+"""
+from concurrent.futures import ThreadPoolExecutor
+import os
+import re
+import sys
+import threading
+import time
+
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                SetParametersResult)
+import rclpy
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.duration import Duration
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos_overriding_options import QoSOverridingOptions
+from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import Header
+
+from grass_nrsfm_ros import cloud, params
+from grass_nrsfm_ros.pipeline import (default_solver_factory, FrameError, SlidingWindow,
+                                      WindowError)
+
+POINTCLOUD2 = 'sensor_msgs/msg/PointCloud2'
+LOG_PERIOD_S = 10.0          # the same kind of problem is logged at most once per period
+ACK_TIMEOUT_S = 2.0           # longest wait for subscribers to take a burst of clouds
+
+
+def descriptor(spec):
+    """ParameterDescriptor for a :class:`params.ParamSpec` (range, read-only, typing)."""
+    d = ParameterDescriptor(description=spec.description, read_only=spec.read_only,
+                            dynamic_typing=spec.type is None)
+    if spec.range is not None and spec.type is int:
+        d.integer_range = [IntegerRange(from_value=int(spec.range[0]),
+                                        to_value=int(spec.range[1]), step=1)]
+    elif spec.range is not None and spec.type is float:
+        d.floating_point_range = [FloatingPointRange(from_value=float(spec.range[0]),
+                                                     to_value=float(spec.range[1]), step=0.0)]
+    return d
+
+
+def stamp_ns(stamp):
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def to_stamp(ns):
+    return Time(sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000))
+
+
+class RateLimitedLog:
+    """Log each kind of problem at most once per ``period`` seconds, with a count of repeats.
+
+    ``logger`` is an rclpy logger; rclpy requires one severity per call site, so each severity
+    has its own method."""
+
+    def __init__(self, logger, period=LOG_PERIOD_S):
+        self._logger, self._period = logger, period
+        self._last, self._repeats = {}, {}
+        self._lock = threading.Lock()
+
+    def _due(self, text):
+        """``text`` (with the count of suppressed repeats) if it is due, else None."""
+        kind = re.sub(r"\d+|'[^']*'", '#', text)
+        now = time.monotonic()
+        with self._lock:
+            if now - self._last.get(kind, -self._period) < self._period:
+                self._repeats[kind] = self._repeats.get(kind, 0) + 1
+                return None
+            repeats = self._repeats.pop(kind, 0)
+            self._last[kind] = now
+        return text + (f' ({repeats} more like this since the last report)' if repeats else '')
+
+    def warning(self, text):
+        line = self._due(text)
+        if line:
+            self._logger.warning(line)
+
+    def info(self, text):
+        line = self._due(text)
+        if line:
+            self._logger.info(line)
+
+
+class ReconstructionNode(Node):
+    """Subscribe ``tracks``, reconstruct sliding windows on a worker thread, publish ``points``.
+
+    ``solver_factory`` / ``warm_start_class`` replace GrassmannNRSfM / WarmStart (tests).
+    """
+
+    def __init__(self, solver_factory=None, warm_start_class=None, **node_kwargs):
+        super().__init__(params.NODE_NAME, **node_kwargs)
+        config = self._declare_parameters()
+        self._log = RateLimitedLog(self.get_logger())
+        self._configure_blas(config['blas_threads'])
+        factory = solver_factory or default_solver_factory(**params.solver_kwargs(config))
+        self.pipeline = SlidingWindow(factory, warm_start_class=warm_start_class,
+                                      metres_per_pixel=config['metres_per_pixel'],
+                                      **params.window_kwargs(config))
+        self._frame_id = config['frame_id']
+        self._counts = dict(messages=0, dropped_messages=0, dropped_windows=0, solve_errors=0)
+        self._last_solve = {}
+        self._lock = threading.Lock()
+        self._pending, self._busy = None, False
+        self._worker = ThreadPoolExecutor(1, thread_name_prefix='grass_nrsfm_solve')
+        qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        overrides = QoSOverridingOptions.with_default_policies()
+        self._input_group = MutuallyExclusiveCallbackGroup()
+        self.tracks_sub = self.create_subscription(
+            PointCloud2, 'tracks', self._on_tracks, qos, callback_group=self._input_group,
+            qos_overriding_options=overrides)
+        self.points_pub = self.create_publisher(PointCloud2, 'points', qos,
+                                                qos_overriding_options=overrides)
+        self.diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self.create_timer(1.0, self._publish_diagnostics,
+                          callback_group=MutuallyExclusiveCallbackGroup())
+        self.add_post_set_parameters_callback(self._on_parameters_set)
+        self.recorder = self._open_recorder(config['record_path'], qos)
+        self.get_logger().info(
+            f'reconstructing {self.tracks_sub.topic_name} -> {self.points_pub.topic_name}: '
+            f'window {self.pipeline.window_size}, stride {self.pipeline.window_stride}')
+
+    # -- configuration ------------------------------------------------------------------------
+    def _declare_parameters(self):
+        """Declare every parameter with its descriptor; return their validated values."""
+        values = {}
+        for spec in params.all_params():
+            value = self.declare_parameter(spec.name, spec.default, descriptor(spec)).value
+            values[spec.name] = value
+        return params.validate(values)
+
+    def _on_parameters_set(self, changed):
+        for p in changed:
+            if p.name == 'metres_per_pixel':
+                self.pipeline.metres_per_pixel = float(p.value)
+            elif p.name == 'frame_id':
+                self._frame_id = str(p.value)
+        return SetParametersResult(successful=True)
+
+    def _configure_blas(self, threads):
+        """Cap BLAS/OpenMP threads so one core stays free for the executor."""
+        from threadpoolctl import threadpool_limits
+        threads = threads or max(1, (os.cpu_count() or 2) - 1)
+        self._blas_limits = threadpool_limits(limits=threads)
+
+    def _open_recorder(self, path, qos):
+        """A :class:`grass_nrsfm_ros.bag.Recorder` of the input tracks (raw CDR, receive time)
+        and output points (publish time), or None when off. Its writer thread keeps the disk
+        off the solve path; a failure (unwritable path, full disk) is logged once and
+        reconstruction goes on."""
+        if not path:
+            return None
+        from grass_nrsfm_ros.bag import Recorder
+
+        recorder = Recorder(path, on_error=self.get_logger().error)
+        for topic in (self.tracks_sub.topic_name, self.points_pub.topic_name):
+            recorder.add_topic(topic, POINTCLOUD2)
+        self.create_subscription(PointCloud2, 'tracks', self._record_tracks, qos, raw=True,
+                                 callback_group=MutuallyExclusiveCallbackGroup())
+        if recorder.error is None:
+            self.get_logger().info(f'recording tracks and points to {path}')
+        return recorder
+
+    # -- input ----------------------------------------------------------------------------------
+    def _on_tracks(self, msg):
+        """Decode one frame, buffer it, hand any closed window to the worker."""
+        self._counts['messages'] += 1
+        stamp = stamp_ns(msg.header.stamp)
+        try:
+            tracks = cloud.decode_tracks(msg)
+        except cloud.CloudError as exc:
+            return self._drop(stamp, f'bad tracks cloud: {exc}')
+        if tracks.ids.size == 0:
+            return self._drop(stamp, 'empty tracks cloud (no finite points)')
+        invalid = int(msg.width) * int(msg.height) - tracks.ids.size
+        if invalid:
+            self._log.warning(f'tracks cloud at {stamp} ns: ignored {invalid} points with '
+                              'non-finite u/v')
+        resets = self.pipeline.stats['resets']
+        try:
+            windows = self.pipeline.add_frame(stamp, tracks.ids, tracks.uv, msg.header.frame_id)
+        except FrameError as exc:
+            return self._drop(stamp, f'frame refused: {exc}')
+        if self.pipeline.stats['resets'] != resets:
+            self._log.info(f'all track ids changed at {stamp} ns: started a new sequence')
+        for window in windows:
+            self._submit(window)
+
+    def _drop(self, stamp, reason):
+        self._counts['dropped_messages'] += 1
+        self._log.warning(f'dropped tracks message at {stamp} ns: {reason}')
+
+    def _record_tracks(self, raw):
+        self.recorder.write(self.tracks_sub.topic_name, raw, self.get_clock().now().nanoseconds)
+
+    # -- solving (worker thread) ----------------------------------------------------------------
+    def _submit(self, window):
+        """Solve ``window`` now, or keep it as the one waiting (replacing an older one)."""
+        with self._lock:
+            if self._busy:
+                if self._pending is not None:
+                    self._counts['dropped_windows'] += 1
+                    self._log.warning('solves are falling behind: skipped to the newest window')
+                self._pending = window
+                return
+            self._busy = True
+        self._worker.submit(self._solve_loop, window)
+
+    def _solve_loop(self, window):
+        while window is not None:
+            self._solve_and_publish(window)
+            with self._lock:
+                window, self._pending = self._pending, None
+                self._busy = window is not None
+
+    def _solve_and_publish(self, window):
+        started = time.monotonic()
+        try:
+            results = self.pipeline.solve(window)
+        except WindowError as exc:
+            self._counts['solve_errors'] += 1
+            return self._log.warning(f'window not solved: {exc}')
+        except Exception as exc:                      # a solver failure must not stop the node
+            self._counts['solve_errors'] += 1
+            return self.get_logger().error(f'window {window.index} failed: '
+                                           f'{type(exc).__name__}: {exc}')
+        self._publish_paced(results)
+        report = self.pipeline.previous.report
+        self._last_solve = dict(
+            solve_seconds=time.monotonic() - started,
+            latency_seconds=time.monotonic() - window.closed_at,
+            iterations=getattr(report, 'iterations', ''),
+            reprojection_residual=self.pipeline.previous.residual,
+            tracks_in_window=window.ids.size, frames_in_window=window.n_frames)
+        self._publish_diagnostics()
+
+    def _publish_paced(self, results):
+        """Publish a window's frames, at most one QoS history (``depth``) ahead of the slowest
+        reliable subscriber: the first window publishes ``window_size`` clouds at once, and a
+        KEEP_LAST publisher would otherwise overwrite the ones not yet delivered."""
+        depth = max(1, self.points_pub.qos_profile.depth)
+        for i, result in enumerate(results):
+            if i and i % depth == 0:
+                self.points_pub.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT_S))
+            self._publish(result)
+
+    def _publish(self, result):
+        header = Header(stamp=to_stamp(result.stamp_ns),
+                        frame_id=self._frame_id or result.frame_id)
+        msg = cloud.encode_points(result.xyz, result.ids, header)
+        self.points_pub.publish(msg)
+        if self.recorder is not None:
+            self.recorder.write(self.points_pub.topic_name, msg,
+                                self.get_clock().now().nanoseconds)
+
+    # -- diagnostics ------------------------------------------------------------------------------
+    def _publish_diagnostics(self):
+        stats = self.pipeline.stats
+        behind = self._counts['dropped_windows'] > 0 or stats['frames_lost'] > 0
+        values = {'windows solved': stats['solved'], 'frames published': stats['published'],
+                  **self._last_solve, 'messages received': self._counts['messages'],
+                  'dropped messages': self._counts['dropped_messages'],
+                  'dropped windows': self._counts['dropped_windows'],
+                  'frames lost': stats['frames_lost'], 'sequences': stats['resets'] + 1,
+                  'windows not solved': self._counts['solve_errors']}
+        message = 'falling behind: skipping to the newest window' if behind else 'ok'
+        level = DiagnosticStatus.WARN if behind else DiagnosticStatus.OK
+        if self.recorder is not None and self.recorder.error:
+            message, level = f'recording failed: {self.recorder.error}', DiagnosticStatus.WARN
+        status = DiagnosticStatus(
+            level=level, name=f'{self.get_name()}: reconstruction', message=message,
+            hardware_id=self.get_fully_qualified_name(),
+            values=[KeyValue(key=k.replace('_', ' '), value=str(v)) for k, v in values.items()])
+        self.diagnostics_pub.publish(DiagnosticArray(
+            header=Header(stamp=self.get_clock().now().to_msg()), status=[status]))
+
+    def close(self):
+        """Wait for the running solve, then close the recording."""
+        with self._lock:
+            self._pending = None
+        self._worker.shutdown(wait=True, cancel_futures=True)
+        if self.recorder is not None:
+            self.recorder.close()
+            self.recorder = None
+
+
+def main(args=None, *, solver_factory=None, warm_start_class=None):
+    """Run the node until Ctrl-C / SIGTERM; returns the exit code (2: invalid parameters)."""
+    rclpy.init(args=args)
+    try:
+        node = ReconstructionNode(solver_factory, warm_start_class)
+    except (ValueError, ParameterException) as exc:
+        print(f'grass_nrsfm node: error: {exc}', file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
+    try:
+        executor = MultiThreadedExecutor(num_threads=2)
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.close()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

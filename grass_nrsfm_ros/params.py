@@ -1,0 +1,266 @@
+"""Every parameter of the node and the windowed pipeline, once: name, default, type, range and
+description.
+
+Three readers share these specs: the ROS node (``declare_parameter`` with a
+``ParameterDescriptor``), ``config/params.yaml`` (``--ros-args --params-file``) and the offline
+CLI (``grass-nrsfm reconstruct --config FILE`` through :func:`load_config`).
+
+The solver's parameters are not repeated here: their defaults come from
+``inspect.signature(GrassmannNRSfM.__init__)`` and their descriptions from
+``GrassmannNRSfM.parameter_specs``; they appear under the prefix ``solver.`` (a nested
+``solver:`` mapping in YAML). The solver is imported lazily, so this module imports no ROS and
+works before the solver is installed (then only the node parameters exist).
+
+Run ``python -m grass_nrsfm_ros.params`` to print the default ``config/params.yaml``.
+"""
+from dataclasses import dataclass
+import difflib
+import inspect
+import math
+import textwrap
+
+NODE_NAME = 'grass_nrsfm'
+SOLVER_PREFIX = 'solver.'
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One parameter. ``type`` is bool, int, float or str, or None for a dynamically typed one
+    (a solver parameter whose default is None or a string such as ``'auto'``); ``range`` is an
+    inclusive ``(low, high)`` for numbers; ``read_only`` parameters fix the node's topology and
+    can only be set at start-up."""
+
+    name: str
+    default: object
+    type: type
+    description: str
+    range: tuple = None
+    choices: tuple = None
+    read_only: bool = True
+
+    def check(self, value):
+        """Return ``value`` converted to this parameter's type, or raise ValueError saying why."""
+        if self.type is None:
+            if self.choices and isinstance(value, str) and value not in self.choices:
+                raise ValueError(f'{self.name}={value!r}: expected one of {list(self.choices)} '
+                                 f'or a number')
+            return value
+        if self.type is float and isinstance(value, int) and not isinstance(value, bool):
+            value = float(value)
+        if not isinstance(value, self.type) or (self.type is int and isinstance(value, bool)):
+            raise ValueError(f'{self.name}={value!r}: expected {self.type.__name__}, '
+                             f'got {type(value).__name__}')
+        if self.type is float and not math.isfinite(value):
+            raise ValueError(f'{self.name}={value!r}: must be finite')
+        if self.range is not None and not self.range[0] <= value <= self.range[1]:
+            raise ValueError(f'{self.name}={value!r}: outside [{self.range[0]}, {self.range[1]}]')
+        if self.choices and value not in self.choices:
+            raise ValueError(f'{self.name}={value!r}: expected one of {list(self.choices)}')
+        return value
+
+
+NODE_PARAMS = (
+    ParamSpec('window_size', 30, int, 'Frames per sliding window solved together.',
+              range=(3, 100000)),
+    ParamSpec('window_stride', 10, int,
+              'New frames between two windows; each window after the first publishes this many '
+              'frames. Must not exceed window_size.', range=(1, 100000)),
+    ParamSpec('min_tracks', 10, int,
+              'Fewest tracks a frame must have; a frame sharing fewer ids than this with the '
+              'previous frame starts a new sequence (all ids changed).', range=(4, 10000000)),
+    ParamSpec('warm_start', True, bool,
+              "Start each window's solve from the previous window's solution on the overlap."),
+    ParamSpec('align_windows', True, bool,
+              "Flip each window's depth to agree with the previous window on the overlap, so "
+              'published clouds keep one orientation over time.'),
+    ParamSpec('frame_id', '', str,
+              'frame_id of the output clouds (the camera optical frame); empty: the input '
+              "cloud's frame_id.", read_only=False),
+    ParamSpec('metres_per_pixel', 1.0, float,
+              'Scale from pixels to output units (x, y, z are all multiplied by it).',
+              range=(1e-12, 1e12), read_only=False),
+    ParamSpec('record_path', '', str,
+              'rosbag2 (MCAP) directory recording the input tracks and output points; empty: '
+              'off.'),
+    ParamSpec('blas_threads', 0, int,
+              'BLAS/OpenMP threads for the solver; 0: all cores but one (at least 1).',
+              range=(0, 1024)),
+)
+
+
+def _solver_class():
+    """GrassmannNRSfM, or None while the solver is not installed."""
+    try:
+        from grass_nrsfm_ros.nrsfm import GrassmannNRSfM
+    except ImportError:
+        return None
+    return GrassmannNRSfM
+
+
+def _spec_field(spec, key):
+    if isinstance(spec, dict):
+        return spec.get(key)
+    return getattr(spec, key, None)
+
+
+def _type_of(default):
+    for kind in (bool, int, float):
+        if type(default) is kind:
+            return kind
+    return None                               # None or str defaults: dynamically typed
+
+
+def solver_params(cls=None):
+    """ParamSpecs of the solver's ``__init__`` keyword parameters, prefixed ``solver.``."""
+    cls = cls or _solver_class()
+    if cls is None:
+        return ()
+    specs = getattr(cls, 'parameter_specs', {}) or {}
+    if not isinstance(specs, dict):
+        specs = {_spec_field(s, 'name'): s for s in specs}
+    out = []
+    for name, p in inspect.signature(cls.__init__).parameters.items():
+        if name == 'self' or p.kind in (p.VAR_POSITIONAL, p.VAR_KEYWORD):
+            continue
+        spec = specs.get(name)
+        description = spec if isinstance(spec, str) else (_spec_field(spec, 'description')
+                                                          or f'GrassmannNRSfM({name}=...)')
+        default = None if p.default is p.empty else p.default
+        rng = _spec_field(spec, 'range') if spec is not None and not isinstance(spec, str) \
+            else None
+        choices = _spec_field(spec, 'choices') if spec is not None and \
+            not isinstance(spec, str) else None
+        kind = _type_of(default)
+        out.append(ParamSpec(SOLVER_PREFIX + name, default, kind, str(description),
+                             range=tuple(rng) if rng is not None and kind in (int, float)
+                             else None,
+                             choices=tuple(choices) if choices else None))
+    return tuple(out)
+
+
+def all_params():
+    """Every parameter: the node's, then the solver's."""
+    return NODE_PARAMS + solver_params()
+
+
+def defaults():
+    """``{name: default}`` for every parameter."""
+    return {p.name: p.default for p in all_params()}
+
+
+def _flatten(mapping, prefix=''):
+    flat = {}
+    for key, value in mapping.items():
+        if isinstance(value, dict):
+            flat.update(_flatten(value, f'{prefix}{key}.'))
+        else:
+            flat[f'{prefix}{key}'] = value
+    return flat
+
+
+def _node_section(data, path):
+    """The parameter mapping of a params file: ``<node>: ros__parameters:`` or flat."""
+    sections = {k: v for k, v in data.items()
+                if isinstance(v, dict) and 'ros__parameters' in v}
+    if not sections:
+        return data
+    for key in (NODE_NAME, '/' + NODE_NAME, '/**'):
+        if key in sections:
+            return sections[key]['ros__parameters'] or {}
+    if len(sections) == 1:
+        return next(iter(sections.values()))['ros__parameters'] or {}
+    raise ValueError(f'{path}: several node sections ({sorted(sections)}); expected '
+                     f'{NODE_NAME!r}')
+
+
+def validate(values):
+    """Check ``{name: value}`` against the specs; returns converted values or raises ValueError
+    naming the parameter (and the closest known name for a typo)."""
+    specs = {p.name: p for p in all_params()}
+    solver_known = bool(solver_params())
+    out = {}
+    for name, value in values.items():
+        if name not in specs:
+            if name.startswith(SOLVER_PREFIX) and not solver_known:
+                out[name] = value           # solver not installed: cannot check its names
+                continue
+            close = difflib.get_close_matches(name, specs, n=1)
+            hint = f'; did you mean {close[0]!r}?' if close else ''
+            raise ValueError(f'unknown parameter {name!r}{hint}')
+        out[name] = specs[name].check(value)
+    if out.get('window_stride', 0) > out.get('window_size', math.inf):
+        raise ValueError(f"window_stride={out['window_stride']} exceeds "
+                         f"window_size={out['window_size']}")
+    return out
+
+
+def load_config(path):
+    """Read a params file and return every parameter's value (defaults overridden by the file).
+
+    Accepts the ROS layout (``grass_nrsfm: {ros__parameters: {...}}``, also ``/**``) or a flat
+    mapping; nested mappings become dotted names (``solver: {gamma: 1e-3}`` ->
+    ``solver.gamma``). Raises ValueError with the file, the parameter and why.
+    """
+    import yaml
+
+    with open(path, encoding='utf-8') as f:
+        data = yaml.safe_load(f) or {}
+    if not isinstance(data, dict):
+        raise ValueError(f'{path}: expected a mapping of parameters, got {type(data).__name__}')
+    try:
+        values = validate(_flatten(_node_section(data, path)))
+        merged = {**defaults(), **values}
+        return validate(merged)
+    except ValueError as exc:
+        raise ValueError(f'{path}: {exc}') from None
+
+
+def solver_kwargs(config):
+    """The solver's keyword arguments from a config dict (``solver.`` prefix removed, unset
+    (None) values left to the solver's defaults)."""
+    n = len(SOLVER_PREFIX)
+    return {k[n:]: v for k, v in config.items() if k.startswith(SOLVER_PREFIX) and v is not None}
+
+
+def window_kwargs(config):
+    """SlidingWindow's keyword arguments from a config dict."""
+    keys = ('window_size', 'window_stride', 'min_tracks', 'warm_start', 'align_windows')
+    return {k: config[k] for k in keys if k in config}
+
+
+def render_yaml():
+    """The default params file (``config/params.yaml``) as text, descriptions as comments."""
+    lines = ['# Parameters of grass_nrsfm_ros (generated by `python -m grass_nrsfm_ros.params`).',
+             '# Used by `ros2 run grass_nrsfm_ros node --ros-args --params-file FILE` and by',
+             '# `grass-nrsfm reconstruct --config FILE`.',
+             f'{NODE_NAME}:', '  ros__parameters:']
+    solver_started = False
+    for p in all_params():
+        indent = '    '
+        key = p.name
+        if p.name.startswith(SOLVER_PREFIX):
+            if not solver_started:
+                lines.append('    solver:')
+                solver_started = True
+            indent, key = '      ', p.name[len(SOLVER_PREFIX):]
+        extra = f' Range [{p.range[0]}, {p.range[1]}].' if p.range else ''
+        lines += textwrap.wrap(p.description + extra, 99, initial_indent=indent + '# ',
+                               subsequent_indent=indent + '# ')
+        lines.append(f'{indent}{key}: {_yaml_value(p.default)}')
+    return '\n'.join(lines) + '\n'
+
+
+def _yaml_value(value):
+    if value is None:
+        return 'null'
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, str):
+        return f"'{value}'"
+    if isinstance(value, float):
+        return repr(value)
+    return str(value)
+
+
+if __name__ == '__main__':
+    print(render_yaml(), end='')

@@ -1,0 +1,370 @@
+"""SlidingWindow: the one windowed reconstruction pipeline, shared by the ROS node and the
+offline bag tools. Pure Python and numpy: no ROS import.
+
+Frames go in one at a time (``add_frame(stamp_ns, ids, uv, frame_id)``: ``ids: (P,)`` track
+ids, ``uv: (P, 2)`` pixels); every ``window_stride`` frames (the first time after
+``window_size`` frames) a :class:`Window` comes out, holding ``W: (2F, P)`` for the tracks seen
+in *all* of its frames. ``solve(window)`` reconstructs it and returns the
+:class:`FrameResult` of each frame not published before: the first window's frames, then the
+``stride`` new frames of each later window, so every frame is published exactly once.
+
+Policies (the node reports each as it happens):
+
+* **Tracks come and go.** A window reconstructs the tracks present in every one of its frames
+  (an intersection by id); a track that appears later joins the first window that contains it
+  from start to end. A window whose frames share fewer than ``min_tracks`` ids is not solved
+  (:class:`WindowError`); its new frames are published by the next window that solves.
+* **Order.** Frames are buffered by stamp, so a frame that arrives out of order is inserted
+  where it belongs, as long as its window has not been emitted yet; a frame older than the
+  newest frame of an emitted window is refused as late (:class:`FrameError`). A second frame
+  with the stamp of a buffered one is refused as a duplicate (the first one is kept).
+* **All ids change** (a new tracker session): a frame sharing fewer than ``min_tracks`` ids
+  with the newest buffered frame starts a new *sequence*. The old buffer's unpublished frames
+  come out in one last window (the newest ``window_size`` frames), the buffer is emptied and
+  no warm start crosses the boundary.
+* **Skipping.** A caller that cannot keep up may drop windows and solve only the newest: the
+  next solved window publishes every unpublished frame it covers; frames that fell out of all
+  solved windows are counted in ``stats['frames_lost']``.
+
+Warm start: each window's solve starts from the previous solution on the overlapping frames
+and tracks (rotations, camera-frame shapes, spatial groups) through
+``solver.fit(W, init=WarmStart(...))``. New frames start from the newest overlapping frame's
+rotation and depth, new tracks from the depth and group of their nearest old track in the image.
+Alignment: a window's camera-frame shapes are defined up to the sign of depth (the orthographic
+reflection) and a depth offset; each window's depth is centred per frame and its sign chosen to
+agree with the previous window on the overlap, so published clouds keep one orientation.
+"""
+from bisect import bisect_left
+from collections import deque
+from dataclasses import dataclass
+import threading
+import time
+
+import numpy as np
+
+from grass_nrsfm_ros.nrsfm.measurement import as_frames, centre
+
+MIN_WINDOW_FRAMES = 3
+DEPTH_FLIP = np.diag([1.0, 1.0, -1.0])
+
+
+class FrameError(ValueError):
+    """A frame that was refused (the message says why); the pipeline state is unchanged."""
+
+
+class WindowError(ValueError):
+    """A window that cannot be solved (too few common tracks)."""
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One buffered frame: ``ids: (P,) uint32`` sorted, ``uv: (P, 2)`` pixels in the same order."""
+
+    stamp_ns: int
+    frame_id: str
+    ids: np.ndarray
+    uv: np.ndarray
+
+
+@dataclass(frozen=True)
+class Window:
+    """A window ready to solve: ``W: (2F, P)`` pixels of the ``ids: (P,)`` common tracks over
+    frames ``stamps: (F,)`` (ascending); ``closed_at``: ``time.monotonic()`` when it closed."""
+
+    sequence: int
+    index: int
+    stamps: np.ndarray
+    frame_ids: tuple
+    ids: np.ndarray
+    W: np.ndarray
+    closed_at: float
+
+    @property
+    def n_frames(self):
+        return len(self.stamps)
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    """One reconstructed frame: ``xyz: (P, 3)`` in the camera frame (x, y = the frame's centred
+    u, v; z = depth; all times ``metres_per_pixel``) for tracks ``ids: (P,)``."""
+
+    stamp_ns: int
+    frame_id: str
+    ids: np.ndarray
+    xyz: np.ndarray
+
+
+@dataclass
+class Solution:
+    """What a solved window leaves for the next one (camera frame, depth sign aligned)."""
+
+    sequence: int
+    stamps: np.ndarray
+    ids: np.ndarray
+    uv: np.ndarray          # (F, P, 2) pixels
+    S: np.ndarray           # (3F, P)
+    R: np.ndarray           # (F, 3, 3)
+    groups: np.ndarray      # (P,) or None
+    report: object          # the solver's report
+    residual: float         # ||Wc - x,y rows of S|| / ||Wc||: relative reprojection residual
+
+
+def _warm_start_class():
+    try:
+        from grass_nrsfm_ros.nrsfm import WarmStart
+    except ImportError:
+        return None
+    return WarmStart
+
+
+def default_solver_factory(**solver_kwargs):
+    """A factory of ``GrassmannNRSfM(**solver_kwargs)`` (imported when first called)."""
+    def make():
+        from grass_nrsfm_ros.nrsfm import GrassmannNRSfM
+        return GrassmannNRSfM(**solver_kwargs)
+    return make
+
+
+class SlidingWindow:
+    """The windowed pipeline; see the module docstring for the policies.
+
+    ``solver_factory()`` returns an object with ``fit(W, init=None)`` returning a result with
+    ``S: (3F, P)``, ``R: (F, 3, 3)``, optional ``groups: (P,)`` and ``report``. ``add_frame``
+    and ``solve`` may run on two different threads (one each).
+    """
+
+    def __init__(self, solver_factory=None, *, window_size=30, window_stride=10, min_tracks=10,
+                 warm_start=True, align_windows=True, metres_per_pixel=1.0,
+                 warm_start_class=None):
+        if not MIN_WINDOW_FRAMES <= window_size:
+            raise ValueError(f'window_size={window_size}: at least {MIN_WINDOW_FRAMES} frames')
+        if not 1 <= window_stride <= window_size:
+            raise ValueError(f'window_stride={window_stride}: must be in 1..window_size '
+                             f'({window_size})')
+        self.solver_factory = solver_factory or default_solver_factory()
+        self.window_size, self.window_stride = int(window_size), int(window_stride)
+        self.min_tracks = int(min_tracks)
+        self.warm_start, self.align_windows = bool(warm_start), bool(align_windows)
+        self.metres_per_pixel = float(metres_per_pixel)
+        self._warm_start_class = warm_start_class
+        self._frames = []               # buffered Frames, ascending stamps
+        self._sequence = 0
+        self._window_index = 0
+        self._emitted_until = None      # newest stamp of the last emitted window
+        self._unpublished = deque(maxlen=1_000_000)   # (sequence, stamp) emitted, not published
+        self._published_until = {}      # sequence -> newest published stamp
+        self._previous = None           # Solution of the last solved window
+        self._lock = threading.Lock()
+        self.stats = dict(frames=0, refused=0, resets=0, windows=0, solved=0, failed=0,
+                          published=0, frames_lost=0)
+
+    # -- input side -------------------------------------------------------------------------
+    def add_frame(self, stamp_ns, ids, uv, frame_id=''):
+        """Buffer one frame; return the windows it closes (usually none, sometimes one; two
+        when all ids changed). Raises FrameError for a refused frame."""
+        frame = self._checked_frame(int(stamp_ns), ids, uv, str(frame_id))
+        windows = []
+        if self._frames and self._shared(frame, self._frames[-1]) < self.min_tracks:
+            windows += self.flush()
+            self._frames = []
+            self._sequence += 1
+            self._count('resets')
+        stamps = [f.stamp_ns for f in self._frames]
+        self._frames.insert(bisect_left(stamps, frame.stamp_ns), frame)
+        self._count('frames')
+        if len(self._frames) >= self.window_size:
+            windows.append(self._emit(self._frames[:self.window_size]))
+            self._frames = self._frames[self.window_stride:]
+        return windows
+
+    def flush(self):
+        """The last window over the newest buffered frames if any of them was never in a window
+        (end of a sequence or of a bag); ``[]`` otherwise."""
+        frames = self._frames[-self.window_size:]
+        fresh = [f for f in frames if self._emitted_until is None
+                 or f.stamp_ns > self._emitted_until]
+        if not fresh or len(frames) < MIN_WINDOW_FRAMES:
+            self._count('frames_lost', len(fresh))
+            return []
+        return [self._emit(frames)]
+
+    def _checked_frame(self, stamp_ns, ids, uv, frame_id):
+        ids = np.asarray(ids)
+        uv = np.asarray(uv, dtype=np.float64)
+        try:
+            if ids.ndim != 1 or uv.shape != (ids.size, 2):
+                raise FrameError(f'ids {ids.shape} and uv {uv.shape} do not match (P,), (P, 2)')
+            if ids.size < self.min_tracks:
+                raise FrameError(f'{ids.size} tracks; at least min_tracks={self.min_tracks} '
+                                 'needed')
+            if not np.isfinite(uv).all():
+                raise FrameError(f'{int((~np.isfinite(uv)).any(axis=1).sum())} tracks with '
+                                 'non-finite u/v')
+            order = np.argsort(ids, kind='stable')
+            ids, uv = ids[order].astype(np.uint32), uv[order]
+            if (ids[1:] == ids[:-1]).any():
+                raise FrameError(f'duplicate track id {int(ids[1:][ids[1:] == ids[:-1]][0])}')
+            if self._emitted_until is not None and stamp_ns <= self._emitted_until:
+                raise FrameError(f'late frame: stamp {stamp_ns} is not newer than the last '
+                                 f'emitted window ({self._emitted_until})')
+            if any(f.stamp_ns == stamp_ns for f in self._frames):
+                raise FrameError(f'duplicate stamp {stamp_ns} (the first frame is kept)')
+        except FrameError:
+            self._count('refused')
+            raise
+        return Frame(stamp_ns, frame_id, ids, uv)
+
+    @staticmethod
+    def _shared(a, b):
+        return int(np.intersect1d(a.ids, b.ids, assume_unique=True).size)
+
+    def _emit(self, frames):
+        common = frames[0].ids
+        for f in frames[1:]:
+            common = np.intersect1d(common, f.ids, assume_unique=True)
+        uv = np.stack([f.uv[np.searchsorted(f.ids, common)] for f in frames])    # (F, P, 2)
+        W = uv.transpose(0, 2, 1).reshape(2 * len(frames), common.size)
+        stamps = np.array([f.stamp_ns for f in frames], dtype=np.int64)
+        for s in stamps:
+            if self._emitted_until is None or s > self._emitted_until:
+                self._unpublished.append((self._sequence, int(s)))
+        self._emitted_until = int(stamps[-1])
+        window = Window(self._sequence, self._window_index, stamps,
+                        tuple(f.frame_id for f in frames), common, W, time.monotonic())
+        self._window_index += 1
+        self._count('windows')
+        return window
+
+    # -- solve side -------------------------------------------------------------------------
+    def solve(self, window):
+        """Reconstruct ``window``; return FrameResults of its frames not yet published (in stamp
+        order). Raises WindowError when its frames share fewer than ``min_tracks`` tracks."""
+        if window.ids.size < self.min_tracks:
+            self._count('failed')
+            raise WindowError(f'window {window.index}: its {window.n_frames} frames share '
+                              f'{window.ids.size} tracks (< min_tracks={self.min_tracks})')
+        Wc, _ = centre(window.W)
+        init = self._warm_start_for(window, Wc) if self.warm_start else None
+        solver = self.solver_factory()
+        result = solver.fit(window.W, init=init) if init is not None else solver.fit(window.W)
+        S = np.array(result.S, dtype=np.float64)
+        Z = as_frames(S, 3)[:, 2, :]
+        Z -= Z.mean(axis=1, keepdims=True)
+        R = np.array(result.R, dtype=np.float64)
+        if self.align_windows and self._depth_disagrees(window, Z):
+            S = DEPTH_FLIP @ as_frames(S, 3)
+            S = S.reshape(-1, S.shape[-1])
+            R = DEPTH_FLIP @ R @ DEPTH_FLIP
+            Z = as_frames(S, 3)[:, 2, :]
+        uv = window.W.reshape(window.n_frames, 2, -1).transpose(0, 2, 1)
+        residual = float(np.linalg.norm(as_frames(Wc, 2) - as_frames(S, 3)[:, :2, :])
+                         / max(np.linalg.norm(Wc), 1e-300))
+        self._previous = Solution(window.sequence, window.stamps, window.ids, uv, S, R,
+                                  getattr(result, 'groups', None), getattr(result, 'report', None),
+                                  residual)
+        self._count('solved')
+        return self._publish(window, as_frames(Wc, 2), Z)
+
+    def _publish(self, window, XY, Z):
+        done = self._published_until.get(window.sequence)
+        fresh = [i for i, s in enumerate(window.stamps) if done is None or s > done]
+        if not fresh:
+            return []
+        newest = int(window.stamps[fresh[-1]])
+        first = int(window.stamps[fresh[0]])
+        self._published_until[window.sequence] = newest
+        while self._unpublished and self._unpublished[0] <= (window.sequence, newest):
+            seq, stamp = self._unpublished.popleft()
+            if seq < window.sequence or stamp < first:
+                self._count('frames_lost')
+        scale = self.metres_per_pixel
+        out = []
+        for i in fresh:
+            xyz = np.empty((window.ids.size, 3))
+            xyz[:, :2] = XY[i].T
+            xyz[:, 2] = Z[i]
+            out.append(FrameResult(int(window.stamps[i]), window.frame_ids[i], window.ids,
+                                   xyz * scale))
+        self._count('published', len(out))
+        return out
+
+    def _overlap(self, window):
+        """Indices ``(frames_new, frames_old, tracks_new, tracks_old)`` shared with the previous
+        solution, or None when it belongs to another sequence or shares too little."""
+        p = self._previous
+        if p is None or p.sequence != window.sequence:
+            return None
+        _, fn, fo = np.intersect1d(window.stamps, p.stamps, return_indices=True)
+        _, tn, to = np.intersect1d(window.ids, p.ids, assume_unique=True, return_indices=True)
+        if fn.size == 0 or tn.size < self.min_tracks:
+            return None
+        return fn, fo, tn, to
+
+    def _depth_disagrees(self, window, Z):
+        """True if depth ``Z: (F, P)`` (centred per frame) correlates negatively with the
+        previous window's depth on the overlapping frames and tracks."""
+        ov = self._overlap(window)
+        if ov is None:
+            return False
+        fn, fo, tn, to = ov
+        new = Z[np.ix_(fn, tn)]
+        old = as_frames(self._previous.S, 3)[:, 2, :][np.ix_(fo, to)]
+        new = new - new.mean(axis=1, keepdims=True)
+        old = old - old.mean(axis=1, keepdims=True)
+        return float(np.sum(new * old)) < 0.0
+
+    def _warm_start_for(self, window, Wc):
+        """WarmStart for ``window`` (centred tracks ``Wc: (2F, P)``) from the previous solution,
+        or None. Known frames: those shared with the previous window."""
+        ov = self._overlap(window)
+        cls = self._warm_start_class or _warm_start_class()
+        if ov is None or cls is None:
+            return None
+        fn, fo, tn, to = ov
+        p = self._previous
+        F, P = window.n_frames, window.ids.size
+        # every new frame copies the nearest shared frame (in time): rotation and depth
+        nearest = fn[np.clip(np.searchsorted(fn, np.arange(F)), 0, fn.size - 1)]
+        source = fo[np.searchsorted(fn, nearest)]
+        R = p.R[source]
+        # depth of each new track from its nearest old track in the first shared frame's image
+        donor = np.full(P, -1)
+        donor[tn] = to
+        missing = donor < 0
+        if missing.any():
+            from scipy.spatial import cKDTree
+            tree = cKDTree(p.uv[fo[0]][to])
+            new_uv = window.W.reshape(F, 2, P)[fn[0]].T[missing]     # pixels, same frame
+            donor[missing] = to[tree.query(new_uv)[1]]
+        Zold = as_frames(p.S, 3)[:, 2, :]
+        Z = Zold[source][:, donor]
+        Z -= Z.mean(axis=1, keepdims=True)
+        S = np.empty((F, 3, P))
+        S[:, :2, :] = as_frames(Wc, 2)
+        S[:, 2, :] = Z
+        known = np.zeros(F, dtype=bool)
+        known[fn] = True
+        groups = None if p.groups is None else np.asarray(p.groups)[donor]
+        return cls(R=R, S=S.reshape(3 * F, P), known=known, groups=groups)
+
+    def _count(self, key, n=1):
+        with self._lock:
+            self.stats[key] += n
+
+    @property
+    def previous(self):
+        """The last solved window's Solution (its ``report`` holds the solver's report)."""
+        return self._previous
+
+
+def reconstruct_sequence(pipeline, stamps, frames, frame_id=''):
+    """Run ``pipeline`` over a whole sequence offline (no skipping) and return its FrameResults
+    in stamp order. ``frames``: iterable of ``(ids: (P,), uv: (P, 2))``, one per stamp."""
+    results = []
+    for stamp, (ids, uv) in zip(stamps, frames):
+        for window in pipeline.add_frame(stamp, ids, uv, frame_id):
+            results += pipeline.solve(window)
+    for window in pipeline.flush():
+        results += pipeline.solve(window)
+    return results

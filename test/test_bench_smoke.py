@@ -1,0 +1,78 @@
+"""A real run of ``python -m bench --smoke`` (each suite's smallest case) and of the table
+generator on what it wrote."""
+import json
+import math
+import os
+from pathlib import Path
+import subprocess
+import sys
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SUITES = ('accuracy', 'noise', 'parameters', 'scale', 'streaming')
+#: numbers every row of a suite must carry, finite
+ROW_KEYS = {'accuracy': ('e3d', 'seconds_wall', 'seconds_cpu', 'F', 'P'),
+            'noise': ('r', 'e3d_mean', 'e3d_std', 'seconds_cpu_mean'),
+            'parameters': ('e3d', 'seconds_cpu'),
+            'scale': ('F', 'P', 'seconds_wall', 'seconds_cpu', 'rss_peak_mb', 'solve_extra_mb'),
+            'streaming': ('P', 'fps', 'latency_mean_s', 'latency_max_s', 'frames_published')}
+
+
+@pytest.fixture(scope='module')
+def smoke_results(tmp_path_factory):
+    out = tmp_path_factory.mktemp('bench_smoke')
+    env = dict(os.environ, OPENBLAS_NUM_THREADS='1', OMP_NUM_THREADS='1',
+               PYTHONPATH=os.pathsep.join(filter(None, [str(REPO),
+                                                        os.environ.get('PYTHONPATH')])))
+    proc = subprocess.run([sys.executable, '-m', 'bench', '--smoke', '--out', str(out)],
+                          cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return out
+
+
+def finite_numbers(x):
+    if isinstance(x, dict):
+        return all(finite_numbers(v) for v in x.values())
+    if isinstance(x, list):
+        return all(finite_numbers(v) for v in x)
+    return not isinstance(x, float) or math.isfinite(x)
+
+
+@pytest.mark.parametrize('suite', SUITES)
+def test_smoke_json_has_finite_numbers_and_expected_keys(smoke_results, suite):
+    doc = json.loads((smoke_results / f'{suite}.json').read_text())
+    assert doc['suite'] == suite and doc['mode'] == 'smoke'
+    assert {'environment', 'rows', 'skipped', 'seconds'} <= set(doc)
+    for skip in doc['skipped']:
+        # the only acceptable skip is a module that is not there yet, never a crash
+        assert 'not available' in skip['why'], skip
+    if not doc['rows']:
+        assert doc['skipped'], f'{suite}: no rows and no reason'
+        pytest.skip(f'{suite}: dependencies missing: {doc["skipped"][0]["why"]}')
+    for row in doc['rows']:
+        for key in ROW_KEYS[suite]:
+            assert isinstance(row.get(key), (int, float)), (suite, key, row.get(key))
+        assert finite_numbers(row), row
+
+
+def test_accuracy_errors_are_errors(smoke_results):
+    doc = json.loads((smoke_results / 'accuracy.json').read_text())
+    for row in doc['rows']:
+        assert 0.0 <= row['e3d'] < 2.0, row        # relative error of a sane reconstruction
+
+
+def test_table_renders_and_rewrites_between_markers(smoke_results, tmp_path):
+    from bench import table
+
+    text = table.markdown(smoke_results)
+    assert text.startswith(table.START) and text.endswith(table.END)
+    readme = tmp_path / 'README.md'
+    readme.write_text(f'# title\n\nbefore\n{table.START}\nold\n{table.END}\nafter\n')
+    assert table.main(['--results', str(smoke_results), '--write', str(readme)]) == 0
+    new = readme.read_text()
+    assert 'old' not in new and new.startswith('# title\n\nbefore\n') and new.endswith('after\n')
+    assert new.count(table.START) == 1 and new.count(table.END) == 1
+    no_markers = tmp_path / 'plain.md'
+    no_markers.write_text('nothing here\n')
+    assert table.main(['--results', str(smoke_results), '--write', str(no_markers)]) == 1

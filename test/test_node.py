@@ -1,0 +1,261 @@
+"""The node over DDS: started in its own process (isolated domain, localhost discovery, logs in
+a temporary folder), fed a synthetic sequence at 30 Hz from this process, its ``points``
+checked against ground truth; malformed clouds are interleaved with good ones.
+
+The node runs with the rigid solver of test_pipeline (injected through ``main``), so these tests
+exercise the node and the pipeline, not the Grassmannian solver.
+"""
+import os
+from pathlib import Path
+import random
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from grass_nrsfm_ros import cloud
+from grass_nrsfm_ros.nrsfm.measurement import as_frames
+from grass_nrsfm_ros.nrsfm.metrics import e3d, e3d_akhter
+
+rclpy = pytest.importorskip('rclpy')
+from builtin_interfaces.msg import Time  # noqa: E402, I100
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from sensor_msgs.msg import PointCloud2, PointField  # noqa: E402
+from std_msgs.msg import Header  # noqa: E402
+from test_pipeline import make_sequence  # noqa: E402
+
+pytestmark = pytest.mark.ros
+TEST_DIR = Path(__file__).resolve().parent
+REPO = TEST_DIR.parent
+LAUNCH = ('import sys; from test_pipeline import RigidALS, RigidWarmStart; '
+          'from grass_nrsfm_ros.node import main; '
+          'sys.exit(main(solver_factory=RigidALS, warm_start_class=RigidWarmStart))')
+PERIOD = 1 / 30
+T0 = 1_700_000_000_000_000_000
+
+
+@pytest.fixture
+def ros_env(tmp_path, monkeypatch):
+    """Isolated ROS settings for this process and the node's."""
+    env = {'ROS_DOMAIN_ID': str(random.randint(0, 101)),
+           'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST', 'ROS_LOG_DIR': str(tmp_path / 'log'),
+           'OPENBLAS_NUM_THREADS': '1', 'OMP_NUM_THREADS': '1'}
+    for key, value in env.items():
+        monkeypatch.setenv(key, value)
+    monkeypatch.delenv('ROS_LOCALHOST_ONLY', raising=False)
+    return {**os.environ, 'PYTHONPATH': os.pathsep.join([str(REPO), str(TEST_DIR)])}
+
+
+class Feeder:
+    """This process's side: publishes ``tracks``, collects ``points`` and ``/diagnostics``."""
+
+    def __init__(self, namespace, subscribers=1):
+        self.subscribers = subscribers              # the node's tracks subscriptions
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node('feeder', namespace=namespace, context=self.context)
+        self.pub = self.node.create_publisher(PointCloud2, 'tracks', 10)
+        self.points, self.diagnostics = [], []
+        self.node.create_subscription(PointCloud2, 'points', self.points.append, 10)
+        self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 10)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+
+    def _on_diagnostics(self, msg):
+        if any(s.hardware_id == self.node.get_namespace() + '/grass_nrsfm' for s in msg.status):
+            self.diagnostics.append(msg)
+
+    def _spin(self):
+        while not self._stop.is_set():
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def wait_for(self, condition, timeout):
+        deadline = time.monotonic() + timeout
+        while not condition() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        return condition()
+
+    def connected(self):
+        return (self.pub.get_subscription_count() >= self.subscribers
+                and self.node.count_publishers(self.node.get_namespace() + '/points') > 0)
+
+    def close(self):
+        self._stop.set()
+        self._thread.join()
+        self.node.destroy_node()
+        rclpy.shutdown(context=self.context)
+
+
+@pytest.fixture
+def node_process(ros_env, tmp_path, request):
+    """Start the node (extra ROS arguments: indirect parameter); yield (process, log path,
+    feeder); stop it with SIGINT."""
+    log = tmp_path / 'node.log'
+    namespace = f'/test_{os.getpid()}_{random.randrange(10 ** 6)}'    # in case domains collide
+    args = getattr(request, 'param', ())
+    extra = [a.format(tmp=tmp_path) for a in args]
+    with open(log, 'w') as out:
+        proc = subprocess.Popen(
+            [sys.executable, '-c', LAUNCH, '--ros-args', '-r', f'__ns:={namespace}',
+             '-p', 'frame_id:=cam_optical', *extra],
+            cwd=TEST_DIR, env=ros_env, stdout=out, stderr=subprocess.STDOUT)
+    recording = any(a.startswith('record_path:={tmp}') for a in args)
+    feeder = Feeder(namespace, subscribers=2 if recording else 1)
+    try:
+        assert feeder.wait_for(feeder.connected, 30), log.read_text()
+        yield proc, log, feeder
+    finally:
+        feeder.close()
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(15)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+
+def header(f):
+    ns = T0 + int(f * PERIOD * 1e9)
+    return Header(stamp=Time(sec=ns // 10 ** 9, nanosec=ns % 10 ** 9), frame_id='camera')
+
+
+def stamp_of(msg):
+    stamp = getattr(msg, 'header', msg).stamp
+    return stamp.sec * 10 ** 9 + stamp.nanosec
+
+
+def publish_at_30hz(feeder, messages):
+    start = time.monotonic()
+    for i, msg in enumerate(messages):
+        time.sleep(max(0.0, start + i * PERIOD - time.monotonic()))
+        feeder.pub.publish(msg)
+
+
+def good_frames(W, ids, first=0):
+    return [cloud.encode_tracks(ids, as_frames(W, 2)[f].T, header(first + f))
+            for f in range(W.shape[0] // 2)]
+
+
+def stacked(points, ids):
+    """``(3F, P)`` from ``points`` messages, columns in the order of ``ids``."""
+    blocks = []
+    for msg in points:
+        got_ids, xyz = cloud.decode_points(msg)
+        assert np.array_equal(np.sort(got_ids), np.sort(ids))
+        blocks.append(xyz[np.argsort(got_ids)][np.searchsorted(np.sort(ids), ids)].T)
+    return np.vstack(blocks)
+
+
+@pytest.mark.parametrize('node_process', [('-p', 'record_path:={tmp}/recording')],
+                         indirect=True)
+def test_node_reconstructs_a_30hz_stream(node_process, tmp_path):
+    proc, log, feeder = node_process
+    W, S, ids = make_sequence(F=60, noise=0.5)
+    publish_at_30hz(feeder, good_frames(W, ids))
+    assert feeder.wait_for(lambda: len(feeder.points) >= 60, 60), log.read_text()
+    time.sleep(0.3)
+    points = sorted(feeder.points, key=stamp_of)
+    assert [stamp_of(m) for m in points] == [stamp_of(header(f)) for f in range(60)]
+    assert all(m.header.frame_id == 'cam_optical' for m in points)
+    streamed = stacked(points, ids)
+    # same data and thresholds as test_pipeline: streaming 0.0349, one-rotation 0.058
+    assert e3d(streamed, S) < 0.042
+    assert e3d_akhter(streamed, S) < 0.07
+    assert feeder.wait_for(lambda: feeder.diagnostics, 5)
+    keys = {kv.key for kv in feeder.diagnostics[-1].status[0].values}
+    assert {'windows solved', 'solve seconds', 'iterations', 'reprojection residual',
+            'tracks in window', 'dropped windows', 'dropped messages'} <= keys
+    proc.send_signal(signal.SIGINT)
+    assert proc.wait(15) == 0
+    # the recording, read back by rosbags: every input and output message, in order
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import get_typestore, Stores
+    with AnyReader([tmp_path / 'recording'],
+                   default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+        recorded = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages()
+                    if c.topic.endswith('/points')]
+    namespace = feeder.node.get_namespace()
+    assert counts == {f'{namespace}/tracks': 60, f'{namespace}/points': 60}
+    assert [stamp_of(m) for m in recorded] == [stamp_of(m) for m in points]
+
+
+def malformed(good, kind):
+    """A broken copy of the tracks cloud ``good``."""
+    msg = PointCloud2(header=good.header, height=good.height, width=good.width,
+                      fields=list(good.fields), is_bigendian=good.is_bigendian,
+                      point_step=good.point_step, row_step=good.row_step,
+                      data=bytes(good.data), is_dense=good.is_dense)
+    if kind == 'missing':
+        msg.fields = [f for f in good.fields if f.name != 'track_id']
+    elif kind == 'datatype':
+        msg.fields = [PointField(name=f.name, offset=f.offset, count=1,
+                                 datatype=PointField.INT32 if f.name == 'u' else f.datatype)
+                      for f in good.fields]
+    elif kind == 'truncated':
+        msg.data = bytes(good.data)[:len(good.data) // 2]
+    elif kind == 'duplicate':
+        tracks = cloud.decode_tracks(good)
+        ids, uv = tracks.ids.copy(), tracks.uv
+        ids[1] = ids[0]
+        msg = cloud.encode_tracks(ids, uv, good.header)
+    elif kind == 'empty':
+        msg = cloud.encode_tracks(np.zeros(0, np.uint32), np.zeros((0, 2)), good.header)
+    return msg
+
+
+def with_non_finite(good):
+    """``good`` plus 7 extra tracks whose u or v is NaN or Inf."""
+    tracks = cloud.decode_tracks(good)
+    ids, uv = tracks.ids, tracks.uv
+    extra = np.arange(7, dtype=np.uint32) + ids.max() + 1
+    bad_uv = np.array([[np.nan, 1], [2, np.nan], [np.inf, 3], [4, -np.inf]] + [[np.nan] * 2] * 3)
+    return cloud.encode_tracks(np.r_[ids, extra], np.vstack([uv, bad_uv]), good.header)
+
+
+LOG_LINES = {'missing': "missing field 'track_id'", 'datatype': "field 'u' has datatype",
+             'truncated': 'layout needs', 'duplicate': 'duplicate track ids',
+             'empty': 'empty tracks cloud', 'nan': 'points with non-finite u/v',
+             'stamp': 'duplicate stamp', 'reset': 'all track ids changed',
+             'record': 'recording to /proc/no_such_dir/recording failed'}
+
+
+@pytest.mark.parametrize('node_process', [('-p', 'record_path:=/proc/no_such_dir/recording')],
+                         indirect=True)
+def test_bad_input_is_logged_once_and_good_frames_still_published(node_process):
+    proc, log, feeder = node_process
+    W, S, ids = make_sequence(F=105, noise=0.5)
+    frames = good_frames(W[:90], ids) + good_frames(W[90:], ids + 50_000, first=45)
+    # frames 0..44: one tracker session, 45..104: every id changed
+    messages = []
+    for f, good in enumerate(frames):
+        kind = {5: 'missing', 12: 'datatype', 20: 'truncated', 27: 'duplicate', 33: 'empty',
+                50: 'stamp'}.get(f)
+        if f == 40:
+            good = with_non_finite(good)
+        messages.append(good)
+        if kind == 'stamp':
+            messages.append(good)                   # the same frame again
+        elif kind:
+            messages.append(malformed(good, kind))  # same stamp, broken: dropped first
+    publish_at_30hz(feeder, messages)
+    assert feeder.wait_for(lambda: len(feeder.points) >= 105, 60), log.read_text()
+    time.sleep(0.3)
+    assert sorted(stamp_of(m) for m in feeder.points) == [stamp_of(header(f))
+                                                          for f in range(105)]
+    assert proc.poll() is None
+    text = log.read_text()
+    for kind, line in LOG_LINES.items():
+        assert text.count(line) == 1, (kind, text)
+    points = sorted(feeder.points, key=stamp_of)
+    assert e3d(stacked(points[:45], ids), S[:135]) < 0.05
+    assert e3d(stacked(points[45:], ids + 50_000), S[135:]) < 0.05

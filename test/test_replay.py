@@ -1,0 +1,159 @@
+"""replay: a real rclpy subscriber in this process receives what a replay subprocess publishes,
+with the recorded stamps and the recorded timing scaled by --rate. (Marked ros.)"""
+import os
+from pathlib import Path
+import random
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from grass_nrsfm_ros import bag
+from grass_nrsfm_ros.cloud import decode_tracks
+
+pytestmark = pytest.mark.ros
+REPO = Path(__file__).resolve().parents[1]
+TOLERANCE_S = 0.030    # per-message timing error allowed; measured p50 ~1 ms on 2 loaded cores
+
+
+@pytest.fixture
+def ros_env(tmp_path, monkeypatch):
+    """Isolated DDS: localhost discovery, a random domain, logs in tmp."""
+    pytest.importorskip('rclpy')
+    env = {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
+           'ROS_DOMAIN_ID': str(random.randint(0, 101)),
+           'ROS_LOG_DIR': str(tmp_path / 'log')}
+    for k, v in env.items():
+        monkeypatch.setenv(k, v)
+    monkeypatch.delenv('ROS_LOCALHOST_ONLY', raising=False)
+    return {**os.environ, **env, 'PYTHONPATH': str(REPO)}
+
+
+def receive(env, bag_path, n_expected, extra=(), timeout=60.0, clock=False):
+    """Run replay in a subprocess; return ``[(monotonic receive time, msg)]`` and clocks."""
+    import rclpy
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import PointCloud2
+
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    node = rclpy.create_node('replay_test_sub', context=ctx)
+    got, clocks = [], []
+    qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+    node.create_subscription(PointCloud2, '/tracks',
+                             lambda m: got.append((time.monotonic(), m)), qos)
+    if clock:
+        node.create_subscription(Clock, '/clock', lambda m: clocks.append(m), 100)
+    from rclpy.executors import SingleThreadedExecutor
+    executor = SingleThreadedExecutor(context=ctx)
+    executor.add_node(node)
+    proc = subprocess.Popen([sys.executable, '-m', 'grass_nrsfm_ros.cli', 'replay',
+                             str(bag_path), '--wait-for-subscribers', '1', *extra],
+                            env=env, cwd=REPO, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.monotonic() + timeout
+        while len(got) < n_expected and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.01)
+        out, _ = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+    assert proc.returncode == 0, out
+    return got, clocks, out
+
+
+def make_bag(path, F=15, period_ns=100_000_000, t0=1_700_000_000_000_000_000, P=25):
+    W = np.random.default_rng(0).uniform(0, 500, (2 * F, P))
+    # irregular timing: a gap in the middle so the schedule is not just a constant period
+    stamps = t0 + np.arange(F) * period_ns + (np.arange(F) >= F // 2) * 2 * period_ns
+    bag.tracks_bag_from_arrays(W, stamps, path)
+    return W, stamps
+
+
+@pytest.mark.parametrize('rate', [2.0, 0.5])
+def test_replay_delivers_every_frame_with_scaled_timing(tmp_path, ros_env, rate):
+    F = 15 if rate > 1 else 6
+    W, stamps = make_bag(tmp_path / 'b', F=F)
+    got, _, out = receive(ros_env, tmp_path / 'b', F, ['--rate', str(rate)])
+    assert len(got) == F, out
+    recv = np.array([t for t, _ in got])
+    for f, (_, msg) in enumerate(got):
+        assert msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec == stamps[f]
+        np.testing.assert_array_equal(decode_tracks(msg).uv, W[2 * f:2 * f + 2].T
+                                      .astype(np.float32))
+    expected = (stamps - stamps[0]) / 1e9 / rate
+    error = (recv - recv[0]) - expected
+    print(f'rate {rate}: timing error p50 {np.median(np.abs(error)) * 1e3:.2f} ms, '
+          f'max {np.abs(error).max() * 1e3:.2f} ms')
+    assert np.abs(error).max() < TOLERANCE_S
+
+
+def test_replay_of_a_ros1_bag_with_clock(tmp_path, ros_env):
+    from rosbags.rosbag1 import Writer as Writer1
+    from rosbags.typesys import get_typestore, Stores
+
+    ts2, ts1 = bag.typestore(), get_typestore(Stores.ROS1_NOETIC)
+    W, stamps = make_bag(tmp_path / 'b', F=8)
+    ros2 = list(bag.read_clouds(tmp_path / 'b', '/tracks'))
+    with Writer1(tmp_path / 'one.bag') as w:
+        conn = w.add_connection('/tracks', bag.POINTCLOUD2, typestore=ts1)
+        for k, (t_ns, m) in enumerate(ros2):
+            T = ts1.types['builtin_interfaces/msg/Time']
+            m1 = ts1.types[bag.POINTCLOUD2](
+                header=ts1.types['std_msgs/msg/Header'](
+                    seq=k, stamp=T(sec=m.header.stamp.sec, nanosec=m.header.stamp.nanosec),
+                    frame_id=m.header.frame_id),
+                height=m.height, width=m.width,
+                fields=[ts1.types['sensor_msgs/msg/PointField'](
+                    name=p.name, offset=p.offset, datatype=p.datatype, count=p.count)
+                    for p in m.fields],
+                is_bigendian=False, point_step=m.point_step, row_step=m.row_step, data=m.data,
+                is_dense=m.is_dense)
+            w.write(conn, t_ns, ts1.serialize_ros1(m1, bag.POINTCLOUD2))
+    del ts2
+    got, clocks, out = receive(ros_env, tmp_path / 'one.bag', 8, ['--rate', '4', '--clock'],
+                               clock=True)
+    assert len(got) == 8, out
+    for f, (_, msg) in enumerate(got):
+        assert msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec == stamps[f]
+        assert msg.header.frame_id == 'camera_optical'
+        np.testing.assert_array_equal(decode_tracks(msg).uv,
+                                      W[2 * f:2 * f + 2].T.astype(np.float32))
+    clock_ns = np.array([c.clock.sec * 10**9 + c.clock.nanosec for c in clocks])
+    assert clock_ns.size >= 8
+    assert (np.diff(clock_ns) >= 0).all()
+    assert clock_ns.min() >= stamps[0] and clock_ns.max() == stamps[-1]
+
+
+def test_replay_of_a_missing_topic_fails_clearly(tmp_path, ros_env):
+    make_bag(tmp_path / 'b', F=3)
+    out = subprocess.run([sys.executable, '-m', 'grass_nrsfm_ros.cli', 'replay',
+                          str(tmp_path / 'b'), '--topic', '/nope'], env=ros_env, cwd=REPO,
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2
+    assert "no topic '/nope' (topics: /tracks)" in out.stderr
+
+
+def test_ctrl_c_stops_a_looping_replay_cleanly(tmp_path, ros_env):
+    import signal
+
+    make_bag(tmp_path / 'b', F=3)
+    proc = subprocess.Popen([sys.executable, '-m', 'grass_nrsfm_ros.cli', 'replay',
+                             str(tmp_path / 'b'), '--loop', '--rate', '10'], env=ros_env,
+                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
+    time.sleep(3.0)
+    assert proc.poll() is None                       # still looping
+    proc.send_signal(signal.SIGINT)
+    out, _ = proc.communicate(timeout=20)
+    assert proc.returncode == 0, out
+    assert 'replay: interrupted' in out and 'Traceback' not in out
+    published = int(out.split('published ')[1].split()[0])
+    assert published > 3                             # it did loop
