@@ -203,3 +203,19 @@ def test_parameter_specs_document_every_parameter():
     assert names == set(GrassmannNRSfM.parameter_specs)
     assert all(len(v) == 2 and all(isinstance(x, str) and x for x in v)
                for v in GrassmannNRSfM.parameter_specs.values())
+
+
+def test_sparse_auto_turns_spatial_branch_off_and_says_so():
+    W, S, R = deforming_sheet(F=20, P=60, seed=6)
+    rep = GrassmannNRSfM().fit(W, init=WarmStart(R=R)).report
+    assert rep.K_s == 1 and rep.gaps[-1][1] == 0.0
+    assert any('spatial branch off' in note for note in rep.notes)
+    explicit = GrassmannNRSfM(K_s=2).fit(W, init=WarmStart(R=R)).report
+    assert explicit.K_s == 2 and not explicit.notes
+
+
+def test_fit_without_rotations_estimates_them():
+    W, S, R = deforming_sheet(F=20, P=300, seed=7)
+    res = GrassmannNRSfM().fit(W)
+    assert res.R.shape == (20, 3, 3) and res.report.K_rot >= 1
+    assert np.all(np.isfinite(res.S)) and res.report.seconds['rotation'] > 0

@@ -67,7 +67,10 @@ P=8000  noise r=0.03     0.0792   0.0460   0.0540    0.0458
 The local subspaces are neutral on clean tracks (third digit) and cut the error by ~40% under
 the paper's noise level: the rank-N zeta projections denoise. Choices behind that:
 * N_s auto = 5 (was 9: no effect at all; 4-6 similar), K_s auto = clip(P / (20 (N_s + 1)),
-  1, 20), min group size N_s + 1.
+  1, 20), min group size N_s + 1. When 'auto' gives a single group (sparse data, P < 240),
+  the spatial branch is switched off (report.notes says so): one group makes zeta_s a global
+  rank-N_s trajectory constraint, which cost accuracy on every sparse mocap set (pickup
+  0.026 -> 0.081, yoga 0.021 -> 0.054, dance 0.124 -> 0.152).
 * K_t auto = clip(round(F / 20), 1, 10) blocks of ~20 frames, N_t auto = min(3, F // K_t).
   N_t = 2 denoised a little more (0.042 vs 0.045 temporal-only) but binds too hard on short
   windows (one 20-frame block of rank 2 raised the reprojection error of a rank-4 surface
@@ -81,6 +84,9 @@ the paper's noise level: the rank-N zeta projections denoise. Choices behind tha
   (162 moves) but e3D is unchanged (0.0270 vs 0.0271). Kept as the paper describes, cheap
   (every 10 iterations).
 * zeta_weight = 1 (the paper); 0.5 gave no gain.
+Sparse mocap (rotations from estimate_rotations, K_rot='auto'; e3D none / temporal = both):
+drink 0.0133 / 0.0078, pickup 0.0260 / 0.0196, yoga 0.0208 / 0.0178, dance 0.1241 / 0.1241,
+Torresani face 0.0168 / 0.0159, shark 0.1175 / 0.1177 (spatial auto-off there, see above).
 Speed: 99 x 28,880 face, both branches: 115 iterations, 149 s CPU / 141 s wall with 2 BLAS
 threads on a 2-core machine shared with other jobs (load 3-6); the S# Gram (F x F) and its
 product dominate, then the spatial power iterations. The 60 s target was not verified on an
@@ -131,6 +137,7 @@ class SolverReport:
     reprojection_relative: float = float('nan')  # the same over the RMS of centred W
     warm_started_frames: int = 0
     fallback: str = None
+    notes: list = field(default_factory=list)    # automatic decisions worth knowing
 
 
 @dataclass
@@ -340,6 +347,12 @@ class GrassmannNRSfM:
         t = timer.add('rotation', t)
 
         K_s, K_t, N_s, N_t = self._sizes(p, F, P, groups)
+        if p['spatial'] and K_s == 1 and p['K_s'] == 'auto' and groups is None:
+            # too few points for local trajectory subspaces: a single group would turn zeta_s
+            # into a global rank-N_s constraint (measured: pickup e3D 0.026 -> 0.081)
+            p['spatial'] = False
+            report.notes.append(f'spatial branch off: P={P} is too few points for K_s >= 2 '
+                                f'groups of > {20 * (N_s + 1)} points')
         report.K_s, report.K_t, report.N_s, report.N_t = K_s, K_t, N_s, N_t
         gamma = p['gamma'] * np.sqrt(F * P)
         report.gamma = gamma
