@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import difflib
 import inspect
 import math
+import re
 import textwrap
 
 NODE_NAME = 'grass_nrsfm'
@@ -97,12 +98,6 @@ def _solver_class():
     return GrassmannNRSfM
 
 
-def _spec_field(spec, key):
-    if isinstance(spec, dict):
-        return spec.get(key)
-    return getattr(spec, key, None)
-
-
 def _type_of(default):
     for kind in (bool, int, float):
         if type(default) is kind:
@@ -110,31 +105,35 @@ def _type_of(default):
     return None                               # None or str defaults: dynamically typed
 
 
+def _range_of(constraint):
+    """Inclusive numeric range from a constraint such as ``'float in [0, 1]'`` or
+    ``'int >= 1'``; None for anything else (the solver validates those in ``fit``)."""
+    match = re.search(r'in \[([-\d.e]+), ([-\d.e]+)\]', constraint)
+    if match:
+        return float(match.group(1)), float(match.group(2))
+    match = re.search(r'>= ([-\d.e]+)$', constraint)
+    return (float(match.group(1)), 1e12) if match else None
+
+
 def solver_params(cls=None):
-    """ParamSpecs of the solver's ``__init__`` keyword parameters, prefixed ``solver.``."""
+    """ParamSpecs of the solver's ``__init__`` keyword parameters, prefixed ``solver.``: the
+    default from the signature, ``(description, constraint)`` from ``parameter_specs``."""
     cls = cls or _solver_class()
     if cls is None:
         return ()
-    specs = getattr(cls, 'parameter_specs', {}) or {}
-    if not isinstance(specs, dict):
-        specs = {_spec_field(s, 'name'): s for s in specs}
     out = []
     for name, p in inspect.signature(cls.__init__).parameters.items():
         if name == 'self' or p.kind in (p.VAR_POSITIONAL, p.VAR_KEYWORD):
             continue
-        spec = specs.get(name)
-        description = spec if isinstance(spec, str) else (_spec_field(spec, 'description')
-                                                          or f'GrassmannNRSfM({name}=...)')
+        description, constraint = cls.parameter_specs[name]
         default = None if p.default is p.empty else p.default
-        rng = _spec_field(spec, 'range') if spec is not None and not isinstance(spec, str) \
-            else None
-        choices = _spec_field(spec, 'choices') if spec is not None and \
-            not isinstance(spec, str) else None
         kind = _type_of(default)
-        out.append(ParamSpec(SOLVER_PREFIX + name, default, kind, str(description),
-                             range=tuple(rng) if rng is not None and kind in (int, float)
-                             else None,
-                             choices=tuple(choices) if choices else None))
+        rng = _range_of(constraint) if kind in (int, float) else None
+        if rng is not None and kind is int:
+            rng = (int(rng[0]), int(min(rng[1], 2**31 - 1)))
+        choices = ('auto',) if 'auto' in constraint else None
+        out.append(ParamSpec(SOLVER_PREFIX + name, default, kind,
+                             f'{description} [{constraint}]', range=rng, choices=choices))
     return tuple(out)
 
 
@@ -243,7 +242,9 @@ def render_yaml():
                 lines.append('    solver:')
                 solver_started = True
             indent, key = '      ', p.name[len(SOLVER_PREFIX):]
-        extra = f' Range [{p.range[0]}, {p.range[1]}].' if p.range else ''
+        extra = ''
+        if p.range and not p.name.startswith(SOLVER_PREFIX):   # solver: constraint in text
+            extra = f' Range [{p.range[0]}, {p.range[1]}].'
         lines += textwrap.wrap(p.description + extra, 99, initial_indent=indent + '# ',
                                subsequent_indent=indent + '# ')
         lines.append(f'{indent}{key}: {_yaml_value(p.default)}')
@@ -258,7 +259,9 @@ def _yaml_value(value):
     if isinstance(value, str):
         return f"'{value}'"
     if isinstance(value, float):
-        return repr(value)
+        text = repr(value)            # YAML 1.1 (PyYAML, rcl) reads 1e-08 as a string: 1.0e-08
+        mantissa, e, exponent = text.partition('e')
+        return f'{mantissa}.0{e}{exponent}' if e and '.' not in mantissa else text
     return str(value)
 
 

@@ -53,8 +53,10 @@ def test_bad_values_name_file_parameter_and_reason(tmp_path, text, message):
 class TinySolver:
     """A solver-shaped class, to check the introspection of its parameters."""
 
-    parameter_specs = {'gamma': {'description': 'nuclear norm weight', 'range': (0.0, 1.0)},
-                       'K': 'rotation rank or auto'}
+    parameter_specs = {'gamma': ('nuclear norm weight', 'float in [0, 1]'),
+                       'K': ('rotation rank', "'auto' or int >= 1"),
+                       'max_iterations': ('iteration cap', 'int >= 1'),
+                       'seed': ('random seed', 'int or None')}
 
     def __init__(self, gamma=1e-3, K='auto', max_iterations=200, seed=None):
         pass
@@ -64,9 +66,14 @@ def test_solver_parameters_from_signature_and_specs():
     specs = {p.name: p for p in params.solver_params(TinySolver)}
     assert list(specs) == ['solver.gamma', 'solver.K', 'solver.max_iterations', 'solver.seed']
     assert specs['solver.gamma'].range == (0.0, 1.0) and specs['solver.gamma'].type is float
-    assert specs['solver.gamma'].description == 'nuclear norm weight'
+    assert specs['solver.gamma'].description == 'nuclear norm weight [float in [0, 1]]'
     assert specs['solver.K'].type is None and specs['solver.K'].check(2) == 2
+    with pytest.raises(ValueError, match='expected one of'):
+        specs['solver.K'].check('sometimes')
     assert specs['solver.max_iterations'].type is int
+    assert specs['solver.max_iterations'].range[0] == 1
+    with pytest.raises(ValueError, match='outside'):
+        specs['solver.max_iterations'].check(0)
     with pytest.raises(ValueError, match='outside'):
         specs['solver.gamma'].check(2.0)
     assert params.solver_kwargs({'solver.gamma': 0.1, 'solver.seed': None, 'window_size': 3}) \
