@@ -84,9 +84,40 @@ def reconstruct_npz(args):
     return 0
 
 
+def reconstruct_bag(args):
+    """The node's sliding-window pipeline over a tracks bag, offline; a refused input (corrupt
+    or truncated bag, missing topic) leaves no output behind."""
+    import shutil
+
+    from grass_nrsfm_ros import bag
+    from grass_nrsfm_ros.params import load_config, solver_kwargs, window_kwargs
+    from grass_nrsfm_ros.pipeline import default_solver_factory, SlidingWindow
+
+    config = load_config(args.config) if args.config else {}
+    known = bag.topics(args.input)                      # corrupt bags fail here, before output
+    if args.topic not in known:
+        raise bag.TopicNotFoundError(f'bag {args.input} has no topic {args.topic!r} (topics: '
+                                     f'{", ".join(sorted(known)) or "none"})')
+    pipeline = SlidingWindow(default_solver_factory(**solver_kwargs(config)),
+                             metres_per_pixel=config.get('metres_per_pixel', 1.0),
+                             **window_kwargs(config))
+    out = Path(args.output)
+    existed = out.exists()
+    try:
+        report = bag.reconstruct_bag(args.input, out, pipeline, topic=args.topic,
+                                     progress=None if args.quiet else bag.text_progress())
+    except BaseException:
+        if not existed and out.exists():
+            shutil.rmtree(out)
+        raise
+    for line in report.refused:
+        print(f'refused: {line}')
+    print(f'{args.input}: {report.frames_in} frames in, {report.frames_out} reconstructed in '
+          f'{report.windows} windows ({report.seconds:.1f} s) -> {out}')
+    return 0
+
+
 def run(args):
     if Path(args.input).suffix == '.npz':
         return reconstruct_npz(args)
-    from grass_nrsfm_ros.bag import reconstruct_bag
-    return reconstruct_bag(args.input, args.output, config_path=args.config, topic=args.topic,
-                           progress=not args.quiet)
+    return reconstruct_bag(args)
