@@ -118,6 +118,17 @@ def _warm_start_class():
     return WarmStart
 
 
+def _takes_progress(fit):
+    """True if ``fit`` accepts a ``progress`` keyword."""
+    import inspect
+
+    try:
+        params = inspect.signature(fit).parameters
+    except (TypeError, ValueError):
+        return False
+    return 'progress' in params or any(p.kind == p.VAR_KEYWORD for p in params.values())
+
+
 def default_solver_factory(**solver_kwargs):
     """A factory of ``GrassmannNRSfM(**solver_kwargs)`` (imported when first called)."""
     def make():
@@ -237,9 +248,11 @@ class SlidingWindow:
         return window
 
     # -- solve side -------------------------------------------------------------------------
-    def solve(self, window):
+    def solve(self, window, progress=None):
         """Reconstruct ``window``; return FrameResults of its frames not yet published (in stamp
-        order). Raises WindowError when its frames share fewer than ``min_tracks`` tracks."""
+        order). Raises WindowError when its frames share fewer than ``min_tracks`` tracks.
+        ``progress(iteration, report)`` is handed to solvers whose ``fit`` takes it (an
+        exception raised there abandons the solve and propagates)."""
         if window.ids.size < self.min_tracks:
             self._count('failed')
             raise WindowError(f'window {window.index}: its {window.n_frames} frames share '
@@ -247,7 +260,10 @@ class SlidingWindow:
         Wc, _ = centre(window.W)
         init = self._warm_start_for(window, Wc) if self.warm_start else None
         solver = self.solver_factory()
-        result = solver.fit(window.W, init=init) if init is not None else solver.fit(window.W)
+        kwargs = {} if init is None else {'init': init}
+        if progress is not None and _takes_progress(solver.fit):
+            kwargs['progress'] = progress
+        result = solver.fit(window.W, **kwargs)
         S = np.array(result.S, dtype=np.float64)
         Z = as_frames(S, 3)[:, 2, :]
         Z -= Z.mean(axis=1, keepdims=True)
