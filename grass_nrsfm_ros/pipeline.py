@@ -174,12 +174,13 @@ class SlidingWindow:
     def add_frame(self, stamp_ns, ids, uv, frame_id=''):
         """Buffer one frame; return the windows it closes (usually none, sometimes one; two
         when all ids changed). Raises FrameError for a refused frame."""
-        frame = self._checked_frame(int(stamp_ns), ids, uv, str(frame_id))
+        frame, new_sequence = self._checked_frame(int(stamp_ns), ids, uv, str(frame_id))
         windows = []
-        if self._frames and self._shared(frame, self._frames[-1]) < self.min_tracks:
+        if new_sequence:
             windows += self.flush()
             self._frames = []
             self._sequence += 1
+            self._emitted_until = None          # a new sequence's stamps may start earlier
             self._count('resets')
         stamps = [f.stamp_ns for f in self._frames]
         self._frames.insert(bisect_left(stamps, frame.stamp_ns), frame)
@@ -216,15 +217,19 @@ class SlidingWindow:
             ids, uv = ids[order].astype(np.uint32), uv[order]
             if (ids[1:] == ids[:-1]).any():
                 raise FrameError(f'duplicate track id {int(ids[1:][ids[1:] == ids[:-1]][0])}')
-            if self._emitted_until is not None and stamp_ns <= self._emitted_until:
+            new_sequence = bool(self._frames) and self._shared(
+                Frame(stamp_ns, frame_id, ids, uv), self._frames[-1]) < self.min_tracks
+            if new_sequence:
+                pass                            # its stamps are not compared with the old ones
+            elif self._emitted_until is not None and stamp_ns <= self._emitted_until:
                 raise FrameError(f'late frame: stamp {stamp_ns} is not newer than the last '
                                  f'emitted window ({self._emitted_until})')
-            if any(f.stamp_ns == stamp_ns for f in self._frames):
+            elif any(f.stamp_ns == stamp_ns for f in self._frames):
                 raise FrameError(f'duplicate stamp {stamp_ns} (the first frame is kept)')
         except FrameError:
             self._count('refused')
             raise
-        return Frame(stamp_ns, frame_id, ids, uv)
+        return Frame(stamp_ns, frame_id, ids, uv), new_sequence
 
     @staticmethod
     def _shared(a, b):
