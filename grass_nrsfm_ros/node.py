@@ -232,7 +232,12 @@ class ReconstructionNode(Node):
 
     def _solve_loop(self, window):
         while window is not None and not self._stopping.is_set():
-            self._solve_and_publish(window)
+            try:
+                self._solve_and_publish(window)
+            except Exception:
+                if not self._stopping.is_set():
+                    raise
+                break                   # the node was torn down under a solve left behind
             with self._lock:
                 window, self._pending = self._pending, None
                 self._busy = window is not None
@@ -266,7 +271,8 @@ class ReconstructionNode(Node):
             iterations=getattr(report, 'iterations', ''),
             reprojection_residual=self.pipeline.previous.residual,
             tracks_in_window=window.ids.size, frames_in_window=window.n_frames)
-        self._publish_diagnostics()
+        if not self._stopping.is_set():
+            self._publish_diagnostics()
 
     def _publish(self, result):
         if self._stopping.is_set():
@@ -287,7 +293,9 @@ class ReconstructionNode(Node):
                   **self._last_solve, 'messages received': self._counts['messages'],
                   'dropped messages': self._counts['dropped_messages'],
                   'dropped windows': self._counts['dropped_windows'],
-                  'frames lost': stats['frames_lost'], 'sequences': stats['resets'] + 1,
+                  'frames lost': stats['frames_lost'],
+                  'frames pending': self.pipeline.pending_frames,
+                  'sequences': stats['resets'] + 1,
                   'windows not solved': self._counts['solve_errors']}
         message = 'falling behind: skipping to the newest window' if behind else 'ok'
         level = DiagnosticStatus.WARN if behind else DiagnosticStatus.OK

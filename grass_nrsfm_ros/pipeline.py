@@ -374,6 +374,16 @@ class SlidingWindow:
             self.stats[key] += n
 
     @property
+    def pending_frames(self):
+        """Accepted frames neither published nor counted lost yet: buffered for a window that
+        has not closed, or in a window not yet solved. At any time ``stats['frames'] ==
+        stats['published'] + stats['frames_lost'] + pending_frames``."""
+        frames = list(self._frames)
+        waiting = sum(1 for f in frames
+                      if self._emitted_until is None or f.stamp_ns > self._emitted_until)
+        return len(self._unpublished) + waiting
+
+    @property
     def previous(self):
         """The last solved window's Solution (its ``report`` holds the solver's report)."""
         return self._previous
