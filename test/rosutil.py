@@ -68,6 +68,25 @@ class Feeder:
             return {}
         return {kv.key: kv.value for kv in self.diagnostics[-1].status[0].values}
 
+    def accounted(self, sent, timeout=30, quiet=1.5):
+        """Wait until the node's diagnostics count ``sent`` messages received and stay unchanged
+        for ``quiet`` s (no solve running); return them as ints (None on timeout). Then every
+        message is accounted for: ``messages received == dropped messages + frames published +
+        frames lost + frames pending``."""
+        keys = ('messages received', 'dropped messages', 'frames published', 'frames lost',
+                'frames pending', 'windows solved', 'dropped windows')
+        deadline, last, since = time.monotonic() + timeout, None, time.monotonic()
+        while time.monotonic() < deadline:
+            values = self.diagnostic_values()
+            now = tuple(values.get(k) for k in keys)
+            if now != last:
+                last, since = now, time.monotonic()
+            elif (values and int(values['messages received']) >= sent
+                  and time.monotonic() - since >= quiet):
+                return {k: int(values[k]) for k in keys}
+            time.sleep(0.1)
+        return None
+
     def close(self):
         self._stop.set()
         self._thread.join()

@@ -13,8 +13,8 @@ Both real ``sensor_msgs/PointCloud2`` messages (field types enforced by rclpy) a
 ones (``SimpleNamespace``: any integer, negative or beyond 64 bits) are tried.
 """
 from collections import Counter
-from types import SimpleNamespace
 import tracemalloc
+from types import SimpleNamespace
 
 from hypothesis import given, HealthCheck, settings, strategies as st
 import numpy as np
@@ -194,7 +194,7 @@ def check_decode(msg, figures):
     finally:
         tracemalloc.stop()
     assert peak <= MEMORY_FACTOR * given_bytes + MEMORY_SLACK, (peak, given_bytes)
-    if given_bytes >= 4096:
+    if given_bytes >= 512:
         figures['peak_ratio_max'] = max(figures['peak_ratio_max'], round(peak / given_bytes, 1))
     if tracks is None:
         figures['rejected'] += 1
