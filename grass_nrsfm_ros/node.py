@@ -26,6 +26,7 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
                                 SetParametersResult)
 import rclpy
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.duration import Duration
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
@@ -40,6 +41,7 @@ from grass_nrsfm_ros.pipeline import (default_solver_factory, FrameError, Slidin
 
 POINTCLOUD2 = 'sensor_msgs/msg/PointCloud2'
 LOG_PERIOD_S = 10.0          # the same kind of problem is logged at most once per period
+ACK_TIMEOUT_S = 2.0           # longest wait for subscribers to take a burst of clouds
 CLOSE_GRACE_S = 1.0          # close() waits this long for a running solve, then leaves it
 
 
@@ -262,8 +264,7 @@ class ReconstructionNode(Node):
             self._counts['solve_errors'] += 1
             return self.get_logger().error(f'window {window.index} failed: '
                                            f'{type(exc).__name__}: {exc}')
-        for result in results:
-            self._publish(result)
+        self._publish_paced(results)
         report = self.pipeline.previous.report
         self._last_solve = dict(
             solve_seconds=time.monotonic() - started,
@@ -273,6 +274,16 @@ class ReconstructionNode(Node):
             tracks_in_window=window.ids.size, frames_in_window=window.n_frames)
         if not self._stopping.is_set():
             self._publish_diagnostics()
+
+    def _publish_paced(self, results):
+        """Publish a window's frames, at most one QoS history (``depth``) ahead of the slowest
+        reliable subscriber: the first window publishes ``window_size`` clouds at once, and a
+        KEEP_LAST publisher would otherwise overwrite the ones not yet delivered."""
+        depth = max(1, self.points_pub.qos_profile.depth)
+        for i, result in enumerate(results):
+            if i and i % depth == 0:
+                self.points_pub.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT_S))
+            self._publish(result)
 
     def _publish(self, result):
         if self._stopping.is_set():

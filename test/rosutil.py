@@ -36,7 +36,7 @@ class Feeder:
         self.pub = self.node.create_publisher(PointCloud2, 'tracks', 10)
         self.points, self.diagnostics = [], []
         self.points_sub = self.node.create_subscription(PointCloud2, 'points',
-                                                        self.points.append, 100)
+                                                        self.points.append, 10)
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 10)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)

@@ -18,7 +18,7 @@ from grass_nrsfm_ros.cli import UserError
 def add_arguments(parser):
     parser.add_argument('input', help='.npz with W (2F, P), or a tracks bag')
     parser.add_argument('-o', '--output', required=True, help='output .npz (or bag directory)')
-    parser.add_argument('--config', help='params.yaml (the node\'s file works too)')
+    parser.add_argument('--config', help="params.yaml (the node's file works too)")
     parser.add_argument('--topic', default='/tracks', help='tracks topic when IN is a bag')
     parser.add_argument('--quiet', action='store_true', help='no progress display')
 
@@ -84,9 +84,9 @@ def reconstruct_npz(args):
     return 0
 
 
-def reconstruct_bag(args):
-    """The node's sliding-window pipeline over a tracks bag, offline; a refused input (corrupt
-    or truncated bag, missing topic) leaves no output behind."""
+def reconstruct_bag_file(args):
+    """The node's sliding-window pipeline over a tracks bag, offline, into an output bag; a
+    refused input (corrupt or truncated bag, missing topic) leaves no output behind."""
     import shutil
 
     from grass_nrsfm_ros import bag
@@ -99,8 +99,8 @@ def reconstruct_bag(args):
         raise bag.TopicNotFoundError(f'bag {args.input} has no topic {args.topic!r} (topics: '
                                      f'{", ".join(sorted(known)) or "none"})')
     pipeline = SlidingWindow(default_solver_factory(**solver_kwargs(config)),
-                             metres_per_pixel=config.get('metres_per_pixel', 1.0),
-                             **window_kwargs(config))
+                             **window_kwargs(config),
+                             metres_per_pixel=config.get('metres_per_pixel', 1.0))
     out = Path(args.output)
     existed = out.exists()
     try:
@@ -108,16 +108,16 @@ def reconstruct_bag(args):
                                      progress=None if args.quiet else bag.text_progress())
     except BaseException:
         if not existed and out.exists():
-            shutil.rmtree(out)
+            shutil.rmtree(out)                          # no half-written output bag
         raise
-    for line in report.refused:
-        print(f'refused: {line}')
     print(f'{args.input}: {report.frames_in} frames in, {report.frames_out} reconstructed in '
-          f'{report.windows} windows ({report.seconds:.1f} s) -> {out}')
+          f'{report.windows} windows, {report.seconds:.1f} s -> {args.output}')
+    for line in report.refused:
+        print(f'refused: {line}', file=sys.stderr)
     return 0
 
 
 def run(args):
     if Path(args.input).suffix == '.npz':
         return reconstruct_npz(args)
-    return reconstruct_bag(args)
+    return reconstruct_bag_file(args)

@@ -1,0 +1,438 @@
+"""Camera rotations from orthographic tracks.
+
+* :func:`rigid_factorisation`: Tomasi-Kanade (rank 3 + metric upgrade), the baseline and the
+  fallback for degenerate input.
+* :func:`estimate_rotations`: the prior-free method of Dai, Li and He (CVPR 2012, IJCV 2014):
+  rank-3K factorisation ``W = Pi B``, linear orthonormality constraints on one column triple
+  ``Q_k = G_k G_k^T`` (3K x 3K), their null space (dimension ``2K^2 - K``), a rank-3 PSD point
+  of that space found by alternating projections from seeded starts, then a scale-free
+  nonlinear least-squares refinement of ``G_k`` (3K x 3). The rank K is picked from the data
+  (:func:`choose_rank`) or given.
+
+Conventions (see :mod:`.measurement`): ``W: (2F, P)``, ``S: (3F, P)`` camera frame,
+``R: (F, 3, 3)`` world to camera. Inputs need not be centred.
+"""
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from .measurement import as_frames, centre, from_frames, track_scale, validate_tracks
+
+#: ratio to the first singular value below which W is treated as having lower rank
+RANK_TOL = 1e-6
+#: number of seeded starts of the intersection search per K
+N_STARTS = 2
+#: alternating-projection sweeps from each start before the nonlinear refinement
+N_PROJECTION_SWEEPS = 30
+#: choose_rank: a next rank keeping more than this share of the noise-only ratio is noise
+PLATEAU_RATIO = 0.93
+#: choose_rank: a residual below this is an exact fit (noise-free data of that rank)
+EXACT_RESIDUAL = 1e-7
+#: default candidate ranks for K='auto'
+DEFAULT_CANDIDATES = tuple(range(1, 7))
+
+
+@dataclass(frozen=True)
+class RotationEstimate:
+    """Result of :func:`estimate_rotations`.
+
+    ``R: (F, 3, 3)`` world-to-camera rotations; ``K`` the rank used; ``scores`` per-K
+    diagnostics ``{K: {...}}`` plus ``'rule'`` and, on fallback, ``'fallback'`` (the reason).
+    """
+    R: np.ndarray
+    K: int
+    scores: dict = field(default_factory=dict)
+
+
+# ----------------------------------------------------------------------------- factorisation
+
+def _fix_signs(U, Vt):
+    """Make the largest-magnitude entry of each left singular vector positive (determinism)."""
+    idx = np.argmax(np.abs(U), axis=0)
+    sign = np.sign(U[idx, np.arange(U.shape[1])])
+    sign[sign == 0] = 1.0
+    return U * sign, Vt * sign[:, None]
+
+
+def _normalised_svd(W):
+    """Centre and scale ``W: (2F, P)``.
+
+    Returns ``(U (2F, r), d (r,), Vt (r, P), Wn (2F, P), scale)`` with signs fixed and
+    ``Wn = centred W / scale``.
+    """
+    Wc, _ = centre(validate_tracks(W))
+    scale = track_scale(Wc)
+    Wn = Wc / scale
+    U, d, Vt = np.linalg.svd(Wn, full_matrices=False)
+    U, Vt = _fix_signs(U, Vt)
+    return U, d, Vt, Wn, scale
+
+
+def _motion_factor(U, d, rank):
+    """``Pi_hat = U_r D_r^{1/2}: (2F, r)``."""
+    return U[:, :rank] * np.sqrt(d[:rank])
+
+
+# ----------------------------------------------------------------------------- constraints
+
+def _svec_index(n):
+    """Upper-triangle indices and weights so that ``<svec(X), svec(Y)> = <X, Y>_F``."""
+    iu, ju = np.triu_indices(n)
+    weight = np.where(iu == ju, 1.0, np.sqrt(2.0))
+    return iu, ju, weight
+
+
+def _svec(X, n):
+    """``X: (..., n, n)`` symmetric -> ``(..., n(n+1)/2)`` Frobenius-isometric vectorisation."""
+    iu, ju, weight = _svec_index(n)
+    return X[..., iu, ju] * weight
+
+
+def _smat(v, n):
+    """Inverse of :func:`_svec` for ``v: (..., n(n+1)/2)``."""
+    iu, ju, weight = _svec_index(n)
+    X = np.zeros(v.shape[:-1] + (n, n))
+    X[..., iu, ju] = v / weight
+    X[..., ju, iu] = v / weight
+    return X
+
+
+def _constraint_matrix(Pi):
+    """Linear orthonormality constraints on ``Q = G G^T`` for ``Pi: (2F, n)``.
+
+    Per frame with rows a, b of Pi: ``a Q a^T - b Q b^T = 0`` and ``a Q b^T = 0``.
+    Returns ``A: (2F, n(n+1)/2)`` acting on ``svec(Q)``.
+    """
+    n = Pi.shape[1]
+    a, b = Pi[0::2], Pi[1::2]
+    aa = a[:, :, None] * a[:, None, :]
+    bb = b[:, :, None] * b[:, None, :]
+    ab = a[:, :, None] * b[:, None, :]
+    equal_norms = _svec(aa - bb, n)
+    orthogonal = _svec(0.5 * (ab + ab.transpose(0, 2, 1)), n)
+    return np.concatenate([equal_norms, orthogonal], axis=0)
+
+
+def _null_space(A, dim):
+    """Orthonormal basis ``(m, dim)`` of the ``dim`` least-constrained directions of ``A``.
+
+    Also returns the ratio of the largest null singular value to the smallest kept one (the
+    gap; small means a clean null space).
+    """
+    _, s, Vt = np.linalg.svd(A, full_matrices=True)
+    s_full = np.zeros(Vt.shape[0])
+    s_full[:s.size] = s
+    N = Vt[-dim:].T
+    kept = s_full[-dim - 1] if Vt.shape[0] > dim else np.inf
+    gap = s_full[-dim:].max() / kept if kept > 0 else 1.0
+    return N, float(gap)
+
+
+def _psd_rank3(Q):
+    """Nearest PSD rank-3 factor ``G: (n, 3)`` (``G G^T`` ~ Q), choosing the sign of Q."""
+    w, V = np.linalg.eigh(Q)
+    if w[-3:].sum() < -w[:3].sum():          # the negative side carries the rank-3 part
+        w, V = -w[::-1], V[:, ::-1]
+    top = np.clip(w[-3:], 0.0, None)
+    return V[:, -3:] * np.sqrt(top)
+
+
+def _intersection_starts(N, n, rng, n_starts):
+    """Rank-3 PSD points near the null space ``N: (m, d)``, from seeded random directions.
+
+    Each start is a random symmetric matrix projected on the null space (independent of the
+    basis chosen for it), then alternately truncated to rank-3 PSD and projected back.
+    """
+    starts = []
+    for _ in range(n_starts):
+        Z = rng.normal(size=(n, n))
+        q = N @ (N.T @ _svec(Z + Z.T, n))
+        for _ in range(N_PROJECTION_SWEEPS):
+            G = _psd_rank3(_smat(q, n))
+            q = N @ (N.T @ _svec(G @ G.T, n))
+        G = _psd_rank3(_smat(q, n))
+        if np.linalg.norm(G) > 0:
+            starts.append(G / np.linalg.norm(G))
+    return starts
+
+
+# ----------------------------------------------------------------------------- refinement
+
+def _orthonormality_residual(g, a, b):
+    """Scale-free orthonormality residual of ``G = g.reshape(n, 3)`` and its Jacobian.
+
+    Per frame, with ``r1 = a G``, ``r2 = b G`` and ``s = |r1|^2 + |r2|^2``:
+    ``e1 = (|r1|^2 - |r2|^2) / s`` and ``e2 = 2 r1.r2 / s`` (both in [-1, 1]).
+    Returns ``(e: (2F,), J: (2F, 3n))``.
+    """
+    n = a.shape[1]
+    G = g.reshape(n, 3)
+    r1, r2 = a @ G, b @ G
+    n1, n2 = (r1 ** 2).sum(1), (r2 ** 2).sum(1)
+    d = (r1 * r2).sum(1)
+    s = np.maximum(n1 + n2, 1e-300)
+    e = np.concatenate([(n1 - n2) / s, 2.0 * d / s])
+    c1a = (4.0 * n2 / s ** 2)[:, None] * r1
+    c1b = (-4.0 * n1 / s ** 2)[:, None] * r2
+    c2a = 2.0 * r2 / s[:, None] - (4.0 * d / s ** 2)[:, None] * r1
+    c2b = 2.0 * r1 / s[:, None] - (4.0 * d / s ** 2)[:, None] * r2
+    J1 = np.einsum('fj,fc->fjc', a, c1a) + np.einsum('fj,fc->fjc', b, c1b)
+    J2 = np.einsum('fj,fc->fjc', a, c2a) + np.einsum('fj,fc->fjc', b, c2b)
+    return e, np.concatenate([J1, J2]).reshape(2 * a.shape[0], 3 * n)
+
+
+def _refine(G0, Pi):
+    """Minimise the scale-free orthonormality residual over ``G: (n, 3)`` from ``G0``."""
+    a, b = Pi[0::2], Pi[1::2]
+
+    def fun(g):
+        return _orthonormality_residual(g, a, b)[0]
+
+    def jac(g):
+        return _orthonormality_residual(g, a, b)[1]
+
+    sol = least_squares(fun, G0.ravel(), jac=jac, method='trf', x_scale='jac',
+                        xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=200)
+    G = sol.x.reshape(G0.shape)
+    return G / np.linalg.norm(G), float(np.sqrt(np.mean(sol.fun ** 2)))
+
+
+# ----------------------------------------------------------------------------- rotations
+
+def _rotations_from_rows(M):
+    """``M: (F, 2, 3)`` camera rows (any scale) -> ``(R: (F, 3, 3), ok: (F,) bool)``.
+
+    Each 2x3 block goes to the nearest matrix with orthonormal rows; the third row is their
+    cross product. ``ok`` is False where the block has (numerically) rank < 2.
+    """
+    U, s, Vt = np.linalg.svd(M, full_matrices=False)
+    rows = U @ Vt
+    R = np.concatenate([rows, np.cross(rows[:, 0], rows[:, 1])[:, None, :]], axis=1)
+    ok = s[:, 1] > RANK_TOL * np.maximum(s[:, 0], 1e-300)
+    return R, ok
+
+
+def sign_continuity(R):
+    """Flip rows 0, 1 of frames so that consecutive rotations are as close as possible.
+
+    ``R`` and ``diag(-1, -1, 1) R`` project identically up to the sign c_ik of the basis
+    coefficient; of the two, each frame keeps the one nearer (in angle) to the previous frame's
+    choice. ``R: (F, 3, 3)`` -> ``(F, 3, 3)``.
+    """
+    D = np.array([-1.0, -1.0, 1.0])
+    rel = R[1:] @ R[:-1].transpose(0, 2, 1)                        # R_f R_{f-1}^T
+    keep = np.trace(rel, axis1=1, axis2=2)
+    flipped = np.einsum('fii,i->f', rel, D)                         # trace(D R_f R_{f-1}^T)
+    parity = np.concatenate([[0], np.cumsum(flipped > keep) % 2])
+    sign = np.where(parity == 1, -1.0, 1.0)
+    out = R.copy()
+    out[:, :2] *= sign[:, None, None]
+    return out
+
+
+def step_angles(R):
+    """Angle (degrees) between consecutive rotations of ``R: (F, 3, 3)`` -> ``(F-1,)``."""
+    rel = R[1:] @ R[:-1].transpose(0, 2, 1)
+    cosang = np.clip((np.trace(rel, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
+    return np.degrees(np.arccos(cosang))
+
+
+def _rotations_from_triple(Pi, G):
+    """Rotations from ``Pi: (2F, n)`` and one column triple ``G: (n, 3)``."""
+    R, ok = _rotations_from_rows(as_frames(Pi @ G, 2))
+    return sign_continuity(R), ok
+
+
+# ----------------------------------------------------------------------------- rigid
+
+def _world_shape(R, Wn):
+    """Least-squares rigid world shape ``X: (3, P)`` with ``W_f ~ R_f[:2] X`` (min-norm)."""
+    cams = R[:, :2, :]
+    normal = np.einsum('fri,frj->ij', cams, cams)
+    rhs = np.einsum('fri,frp->ip', cams, as_frames(Wn, 2))
+    return np.linalg.pinv(normal, rcond=1e-8) @ rhs
+
+
+def _rigid(W):
+    """Tomasi-Kanade. Returns ``(R, S camera frame in W's units, info dict)``."""
+    U, d, Vt, Wn, scale = _normalised_svd(W)
+    F = Wn.shape[0] // 2
+    info = {'energy': float((d[:3] ** 2).sum() / (d ** 2).sum())}
+    rank = int((d > RANK_TOL * d[0]).sum())
+    R = None
+    if rank >= 3:
+        Pi = _motion_factor(U, d, 3)
+        N, gap = _null_space(_constraint_matrix(Pi), 1)
+        G = _psd_rank3(_smat(N[:, 0], 3))
+        R, ok = _rotations_from_triple(Pi, G)
+        info['null_gap'] = gap
+        if not ok.all() or np.linalg.matrix_rank(G) < 3:
+            info['fallback'] = 'metric upgrade degenerate (no rank-3 PSD solution)'
+            R = None
+    else:
+        info['fallback'] = f'W has rank {rank} < 3 (static camera or planar scene)'
+    if R is None:
+        R = np.broadcast_to(np.eye(3), (F, 3, 3)).copy()
+        depth = np.zeros((F, 1, Wn.shape[1]))
+        S = from_frames(np.concatenate([as_frames(Wn, 2), depth], axis=1)) * scale
+        return R, S, info
+    S = from_frames(R @ _world_shape(R, Wn)[None]) * scale
+    return R, S, info
+
+
+def rigid_factorisation(W):
+    """Tomasi-Kanade rigid factorisation of ``W: (2F, P)`` (any translation).
+
+    Returns ``(R: (F, 3, 3), S: (3F, P))`` with S the rigid shape in each frame's camera
+    coordinates (centred, in W's units). Rank-deficient input (static camera, planar scene)
+    gives identity rotations and the flat shapes ``[W_f; 0]``, never NaN.
+    """
+    R, S, _ = _rigid(W)
+    return R, S
+
+
+# ----------------------------------------------------------------------------- Dai et al.
+
+def _max_rank(F, P):
+    """Largest K with ``3K <= min(2F, P)`` and enough constraints (2F) to pin the null space.
+
+    The constraints must cut ``3K(3K+1)/2`` unknowns down to ``2K^2 - K``, i.e. at least
+    ``5K(K+1)/2`` independent rows.
+    """
+    K = 1
+    while 3 * (K + 1) <= min(2 * F, P) and 2 * F >= 5 * (K + 1) * (K + 2) // 2:
+        K += 1
+    return K
+
+
+def _numerical_rank(d):
+    """Number of singular values ``d`` above ``RANK_TOL`` times the largest."""
+    return int((d > RANK_TOL * d[0]).sum())
+
+
+def rotations_for_rank(W, K, *, random_state=0, n_starts=N_STARTS, warm=None, _svd=None):
+    """Dai et al.'s rotations at a fixed rank K for ``W: (2F, P)``.
+
+    ``warm``: an optional column triple ``(r', 3)`` from a smaller rank, padded with zeros and
+    refined as one more start (the factorisations are nested, so this makes the best residual
+    non-increasing in K). Where W has numerical rank ``r < 3K`` (but ``r > 3K - 3``) the
+    factorisation uses rank r and the null space is taken numerically.
+    Returns ``(R: (F, 3, 3), G: (r, 3), diagnostics dict)``. Raises ValueError if infeasible.
+    """
+    U, d, Vt, Wn, _ = _svd if _svd is not None else _normalised_svd(W)
+    n = min(3 * K, _numerical_rank(d))
+    if n <= 3 * K - 3 or n < 3:
+        raise ValueError(f'W has numerical rank {_numerical_rank(d)} <= 3(K-1) = {3 * K - 3}')
+    Pi = _motion_factor(U, d, n)
+    A = _constraint_matrix(Pi)
+    null_dim = 2 * K * K - K
+    if n < 3 * K:
+        s = np.linalg.svd(A, compute_uv=False)
+        null_dim = max(1, int((s < RANK_TOL * s[0]).sum()) + A.shape[1] - s.size)
+    N, gap = _null_space(A, null_dim)
+    rng = np.random.default_rng(random_state)
+    starts = _intersection_starts(N, n, rng, n_starts)
+    if warm is not None:
+        starts.append(np.vstack([warm, np.zeros((n - warm.shape[0], 3))]))
+    best = None
+    for G0 in starts:
+        G, res = _refine(G0, Pi)
+        if best is None or res < best[1] - 1e-12:
+            best = (G, res)
+    if best is None:
+        raise ValueError('no rank-3 PSD point found in the null space')
+    G, res = best
+    R, ok = _rotations_from_triple(Pi, G)
+    if not ok.all():
+        raise ValueError('rotation rows degenerate for some frames')
+    steps = step_angles(R)
+    info = {
+        'residual': res,
+        'rank_used': n,
+        'null_dim': null_dim,
+        'null_gap': gap,
+        'energy': float((d[:n] ** 2).sum() / (d ** 2).sum()),
+        'step_median_deg': float(np.median(steps)) if steps.size else 0.0,
+        'step_mean_deg': float(steps.mean()) if steps.size else 0.0,
+    }
+    return R, G, info
+
+
+def estimate_rotations(W, K='auto', *, candidates=DEFAULT_CANDIDATES, random_state=0):
+    """Camera rotations of ``W: (2F, P)`` (any translation) by Dai et al.'s method.
+
+    ``K``: the shape-basis rank, an int, or 'auto' to choose among ``candidates`` with
+    :func:`choose_rank`. Degenerate input falls back to :func:`rigid_factorisation` with the
+    reason in ``scores['fallback']``. Returns a :class:`RotationEstimate`.
+    """
+    svd = _normalised_svd(W)
+    F, P = svd[3].shape[0] // 2, svd[3].shape[1]
+    if K == 'auto':
+        wanted = sorted(k for k in set(int(c) for c in candidates) if k >= 1)
+        top = min(max(wanted, default=1), _max_rank(F, P))
+        ranks = list(range(1, top + 1))
+    else:
+        if int(K) != K or K < 1:
+            raise ValueError(f'K must be a positive int or "auto"; got {K!r}')
+        ranks = list(range(1, int(K) + 1))
+    scores, results, warm = {}, {}, None
+    for k in ranks:
+        try:
+            R, warm, info = rotations_for_rank(W, k, random_state=random_state, warm=warm,
+                                               _svd=svd)
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            scores[k] = {'error': str(exc)}
+            continue
+        scores[k], results[k] = info, R
+    keep = wanted if K == 'auto' else [int(K)]
+    results = {k: r for k, r in results.items() if k in keep}
+    if not results:
+        R, _, info = _rigid(W)
+        failed = '; '.join(f'K={k}: {scores[k]["error"]}' for k in keep if k in scores)
+        scores['fallback'] = info.get('fallback', failed or 'no rank gave rotations')
+        scores['fallback'] += '; rigid factorisation used'
+        return RotationEstimate(R=R, K=1, scores=scores)
+    if K == 'auto':
+        chosen, rule = choose_rank({k: scores[k]['residual'] for k in results}, F)
+    else:
+        chosen, rule = int(K), f'K={int(K)} given'
+    scores['rule'] = rule
+    return RotationEstimate(R=results[chosen], K=chosen, scores=scores)
+
+
+def noise_ratio(K, n_frames):
+    """Expected ``r_{K+1} / r_K`` when rank K already explains W and the rest is noise.
+
+    The refined ``G_k`` has ``9K - 4`` effective parameters (9K entries less a global rotation
+    and scale) against ``2F`` residuals, so under noise alone each extra basis shape lowers the
+    RMS residual by the factor ``sqrt((2F - 9K - 5) / (2F - 9K + 4))``.
+    """
+    dof = 2 * n_frames - (9 * K - 4)
+    return float(np.sqrt(max(dof - 9, 1) / max(dof, 1)))
+
+
+def choose_rank(residuals, n_frames, *, plateau=PLATEAU_RATIO, exact=EXACT_RESIDUAL):
+    """Pick the rotation rank K from the best orthonormality residual at each K.
+
+    ``residuals``: ``{K: rms residual}`` from the nested search (non-increasing in K);
+    ``n_frames``: F. Rule: the smallest K whose residual is already exact (``< exact``) or
+    that the next rank K' improves by no more than noise would
+    (``r_K' / r_K > plateau * noise_ratio``, per rank step): past the true rank the extra
+    columns only fit noise, while below it every added basis shape removes a large share.
+    Without a plateau, the largest K. Over-estimating K costs little with nested starts and
+    under-estimating costs much, so the rule leans high. Returns ``(K, reason)``.
+    """
+    ks = sorted(residuals)
+    for k, nxt in zip(ks, ks[1:] + [None]):
+        r = residuals[k]
+        if r < exact:
+            return k, f'K={k}: residual {r:.2e} below {exact:g} (exact fit)'
+        if nxt is None:
+            return k, f'K={k}: largest feasible rank, no plateau before it'
+        ratio = residuals[nxt] / r
+        expected = np.prod([noise_ratio(j, n_frames) for j in range(k, nxt)])
+        if ratio > plateau * expected:
+            return k, (f'K={k}: residual plateau, r{nxt}/r{k} = {ratio:.3f} > {plateau} x '
+                       f'{expected:.3f} (noise-only ratio)')
+    raise ValueError('no residuals')

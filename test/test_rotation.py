@@ -1,0 +1,179 @@
+"""Camera rotations: Tomasi-Kanade and Dai et al.'s prior-free method, rank choice, fallbacks."""
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from grass_nrsfm_ros.nrsfm.baselines import bmm
+from grass_nrsfm_ros.nrsfm.measurement import validate_rotations
+from grass_nrsfm_ros.nrsfm.metrics import e3d, rotation_error
+from grass_nrsfm_ros.nrsfm.rotation import (choose_rank, estimate_rotations,
+                                            rigid_factorisation, sign_continuity)
+
+
+def smooth_rotations(F, rng, step_deg=4.0):
+    """``(F, 3, 3)`` camera path turning ``step_deg`` per frame about a slowly drifting axis."""
+    t = np.linspace(0.0, 1.0, F)
+    phase = rng.uniform(size=2)
+    speed = rng.uniform(0.3, 1.0, size=2)
+    axis = np.stack([np.sin(2 * np.pi * (speed[0] * t + phase[0])),
+                     np.cos(2 * np.pi * (speed[1] * t + phase[1])),
+                     np.full(F, rng.uniform(0.0, 1.0))], axis=1)
+    steps = np.radians(step_deg) * axis / np.linalg.norm(axis, axis=1, keepdims=True)
+    R = [Rotation.from_rotvec(rng.normal(size=3))]
+    for rotvec in steps[1:]:
+        R.append(Rotation.from_rotvec(rotvec) * R[-1])
+    return np.stack([r.as_matrix() for r in R])
+
+
+def synthetic(F=120, P=60, K=2, noise=0.0, seed=0):
+    """Low-rank deforming shapes seen by a smooth orthographic camera, with translation.
+
+    Returns ``(W (2F, P), S (3F, P) camera frame, R (F, 3, 3))``; ``noise`` is the standard
+    deviation of added image noise relative to the RMS of the centred tracks.
+    """
+    rng = np.random.default_rng(seed)
+    basis = rng.normal(size=(K, 3, P))
+    basis[1:] *= 0.5
+    t = np.linspace(0.0, 1.0, F)
+    coeff = np.ones((F, K))
+    for k in range(1, K):
+        coeff[:, k] = np.sin(2 * np.pi * (rng.uniform(0.5, 2.0) * t + rng.uniform()))
+    R = smooth_rotations(F, rng)
+    S = R @ np.einsum('fk,kip->fip', coeff, basis)
+    W = S[:, :2].reshape(2 * F, P) + rng.normal(size=(2 * F, 1))
+    spread = np.sqrt(np.mean((W - W.mean(axis=1, keepdims=True)) ** 2))
+    W = W + noise * spread * rng.normal(size=W.shape)
+    return W, S.reshape(3 * F, P), R
+
+
+def test_rigid_factorisation_recovers_rigid_scene():
+    W, S, R_true = synthetic(K=1, seed=3)
+    R, S_est = rigid_factorisation(W)
+    validate_rotations(R, 120)
+    assert rotation_error(R, R_true) < 0.5
+    assert e3d(S_est, S) < 1e-6
+
+
+def test_rigid_factorisation_with_noise_stays_close():
+    W, S, R_true = synthetic(K=1, noise=0.02, seed=4)
+    R, S_est = rigid_factorisation(W)
+    assert rotation_error(R, R_true) < 0.5          # measured 0.2 deg
+    assert e3d(S_est, S) < 0.03                     # measured 0.017
+
+
+def test_rank_one_matches_rigid_and_auto_stays_rigid():
+    W, _, R_true = synthetic(K=1, noise=0.02, seed=5)
+    est1 = estimate_rotations(W, K=1)
+    R_rigid, _ = rigid_factorisation(W)
+    assert est1.K == 1
+    assert rotation_error(est1.R, R_rigid) < 0.1
+    auto = estimate_rotations(W)
+    assert auto.K == 1, auto.scores['rule']
+    assert rotation_error(auto.R, R_true) < 0.5
+
+
+@pytest.mark.parametrize('K_true', [2, 3])
+def test_dai_recovers_rotations_of_noise_free_nonrigid_scene(K_true):
+    W, S, R_true = synthetic(K=K_true, seed=10 + K_true)
+    est = estimate_rotations(W, K=K_true)
+    validate_rotations(est.R, 120)
+    assert rotation_error(est.R, R_true) < 0.5
+    rigid_R, _ = rigid_factorisation(W)
+    assert rotation_error(rigid_R, R_true) > 2.0    # the rigid model is really wrong here
+
+
+@pytest.mark.parametrize('K_true', [2, 3])
+def test_dai_rotations_with_noise_within_a_few_degrees(K_true):
+    W, _, R_true = synthetic(K=K_true, noise=0.02, seed=20 + K_true)
+    est = estimate_rotations(W, K=K_true)
+    assert rotation_error(est.R, R_true) < 6.0      # measured 2.2 to 4.0 deg at 2 % noise
+
+
+@pytest.mark.parametrize('K_true, seed', [(1, 30), (2, 31), (3, 32), (4, 33)])
+def test_auto_rank_is_near_oracle_on_noisy_synthetic(K_true, seed):
+    W, S, _ = synthetic(K=K_true, noise=0.02, seed=seed)
+    auto = estimate_rotations(W, candidates=range(1, 5))
+    errors = {k: e3d(bmm(W, estimate_rotations(W, K=k).R), S) for k in range(1, 5)}
+    assert auto.K == K_true, auto.scores['rule']
+    # factor stated up front: auto within 10 % of the best fixed K
+    assert errors[auto.K] <= 1.1 * min(errors.values())
+
+
+def test_auto_rank_on_noise_free_data_stops_at_exact_fit():
+    W, _, R_true = synthetic(K=2, seed=40)
+    est = estimate_rotations(W)
+    assert est.K == 2, est.scores['rule']
+    assert rotation_error(est.R, R_true) < 0.5
+    assert 'error' in est.scores[3]                 # rank 6 data cannot carry K = 3
+
+
+def test_choose_rank_rule():
+    assert choose_rank({1: 0.3, 2: 0.03, 3: 0.029, 4: 0.028}, 100)[0] == 2
+    assert choose_rank({1: 0.3, 2: 0.1, 3: 0.05}, 100)[0] == 3          # no plateau: largest
+    assert choose_rank({1: 0.1, 2: 1e-12, 3: 1e-13}, 100)[0] == 2       # exact fit
+    assert choose_rank({1: 0.01, 2: 0.0099}, 100)[0] == 1
+    # a weak basis shape (12 % drop) counts on a long sequence, not on a short one
+    assert choose_rank({1: 0.3, 2: 0.01, 3: 0.0088, 4: 0.0087}, 300)[0] == 3
+    assert choose_rank({1: 0.3, 2: 0.01, 3: 0.0088, 4: 0.0087}, 20)[0] == 2
+
+
+def test_sign_continuity_undoes_random_flips():
+    rng = np.random.default_rng(6)
+    R = smooth_rotations(50, rng)
+    flips = rng.integers(0, 2, size=50).astype(bool)
+    flipped = R.copy()
+    flipped[flips, :2] *= -1.0
+    fixed = sign_continuity(flipped)
+    sign = 1.0 if np.allclose(fixed[0], R[0]) else -1.0
+    assert np.allclose(fixed[:, :2], sign * R[:, :2])
+    assert np.allclose(fixed[:, 2], R[:, 2])
+
+
+def test_deterministic():
+    W, _, _ = synthetic(K=2, noise=0.02, seed=7)
+    a = estimate_rotations(W, candidates=range(1, 4))
+    b = estimate_rotations(W, candidates=range(1, 4))
+    assert a.K == b.K
+    assert np.array_equal(a.R, b.R)
+
+
+def test_deterministic_across_blas_threads():
+    threadpoolctl = pytest.importorskip('threadpoolctl')
+    W, _, _ = synthetic(K=3, noise=0.02, seed=8)
+    with threadpoolctl.threadpool_limits(1):
+        a = estimate_rotations(W, candidates=range(1, 4))
+    with threadpoolctl.threadpool_limits(2):
+        b = estimate_rotations(W, candidates=range(1, 4))
+    assert a.K == b.K
+    assert rotation_error(a.R, b.R) < 1e-6
+
+
+def static_camera_tracks(F=20, P=30, seed=0):
+    rng = np.random.default_rng(seed)
+    shape = rng.normal(size=(2, P))
+    return np.tile(shape, (F, 1)) + rng.normal(size=(2 * F, 1))
+
+
+def planar_scene_tracks(F=20, P=30, seed=0):
+    rng = np.random.default_rng(seed)
+    plane = np.vstack([rng.normal(size=(2, P)), np.zeros((1, P))])
+    R = smooth_rotations(F, rng, step_deg=5.0)
+    return (R[:, :2] @ plane).reshape(2 * F, P)
+
+
+@pytest.mark.parametrize('make', [static_camera_tracks, planar_scene_tracks])
+def test_degenerate_input_falls_back_without_nan(make):
+    W = make()
+    est = estimate_rotations(W)
+    validate_rotations(est.R, W.shape[0] // 2)
+    assert 'fallback' in est.scores and 'rank' in est.scores['fallback']
+    R, S = rigid_factorisation(W)
+    assert np.isfinite(R).all() and np.isfinite(S).all()
+    assert np.allclose(S.reshape(-1, 3, W.shape[1])[:, :2].reshape(W.shape),
+                       W - W.mean(axis=1, keepdims=True), atol=1e-8)
+
+
+def test_invalid_K_rejected():
+    W, _, _ = synthetic(K=1, F=10, P=20)
+    with pytest.raises(ValueError):
+        estimate_rotations(W, K=0)
