@@ -198,6 +198,8 @@ class SlidingWindow:
                  or f.stamp_ns > self._emitted_until]
         if not fresh or len(frames) < MIN_WINDOW_FRAMES:
             self._count('frames_lost', len(fresh))
+            if fresh:                           # given up: not pending, not lost twice
+                self._emitted_until = fresh[-1].stamp_ns
             return []
         return [self._emit(frames)]
 
