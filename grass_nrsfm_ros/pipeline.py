@@ -272,9 +272,13 @@ class SlidingWindow:
             kwargs['progress'] = progress
         result = solver.fit(window.W, **kwargs)
         S = np.array(result.S, dtype=np.float64)
+        R = np.array(result.R, dtype=np.float64)
+        if not (np.isfinite(S).all() and np.isfinite(R).all()):
+            self._count('failed')
+            raise WindowError(f'window {window.index}: the solver returned non-finite shapes or '
+                              'rotations; nothing published')
         Z = as_frames(S, 3)[:, 2, :]
         Z -= Z.mean(axis=1, keepdims=True)
-        R = np.array(result.R, dtype=np.float64)
         if self.align_windows and self._depth_disagrees(window, Z):
             S = DEPTH_FLIP @ as_frames(S, 3)
             S = S.reshape(-1, S.shape[-1])
