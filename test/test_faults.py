@@ -4,7 +4,6 @@ with the rigid test solver of test_pipeline unless a test needs a slow one."""
 import json
 import os
 from pathlib import Path
-import re
 import resource
 import signal
 import subprocess
@@ -89,7 +88,8 @@ def write_figures():
     yield
     if FIGURES:
         RESULTS.parent.mkdir(parents=True, exist_ok=True)
-        RESULTS.write_text(json.dumps(FIGURES, indent=1, sort_keys=True) + '\n')
+        old = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
+        RESULTS.write_text(json.dumps({**old, **FIGURES}, indent=1, sort_keys=True) + '\n')
 
 
 def ros():
@@ -101,8 +101,8 @@ def ros():
 
 # -- stopping ------------------------------------------------------------------------------------
 @pytest.mark.ros
-@pytest.mark.parametrize('launch', [SLOW_LAUNCH, STUBBORN_LAUNCH], ids=['cancellable',
-                                                                         'stubborn'])
+@pytest.mark.parametrize('launch', [SLOW_LAUNCH, STUBBORN_LAUNCH],
+                         ids=['cancellable', 'stubborn'])
 def test_sigterm_during_a_solve_exits_within_2s_and_finalises_the_recording(
         ros_env, tmp_path, launch):
     rosutil = ros()
