@@ -42,6 +42,7 @@ from grass_nrsfm_ros.pipeline import (default_solver_factory, FrameError, Slidin
 POINTCLOUD2 = 'sensor_msgs/msg/PointCloud2'
 LOG_PERIOD_S = 10.0          # the same kind of problem is logged at most once per period
 ACK_TIMEOUT_S = 2.0           # longest wait for subscribers to take a burst of clouds
+INPUT_DEPTH = 100            # tracks messages the node's reader keeps (3 s at 30 Hz)
 CLOSE_GRACE_S = 1.0          # close() waits this long for a running solve, then leaves it
 
 
@@ -127,10 +128,13 @@ class ReconstructionNode(Node):
         self._stopping = threading.Event()
         self._solve_thread = None
         qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        # input: a history of INPUT_DEPTH frames, so a stall of the executor (the solver holding
+        # the GIL, a busy core) delays frames instead of overwriting them unseen
+        input_qos = QoSProfile(depth=INPUT_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
         overrides = QoSOverridingOptions.with_default_policies()
         self._input_group = MutuallyExclusiveCallbackGroup()
         self.tracks_sub = self.create_subscription(
-            PointCloud2, 'tracks', self._on_tracks, qos, callback_group=self._input_group,
+            PointCloud2, 'tracks', self._on_tracks, input_qos, callback_group=self._input_group,
             qos_overriding_options=overrides)
         self.points_pub = self.create_publisher(PointCloud2, 'points', qos,
                                                 qos_overriding_options=overrides)
@@ -138,7 +142,7 @@ class ReconstructionNode(Node):
         self.create_timer(1.0, self._publish_diagnostics,
                           callback_group=MutuallyExclusiveCallbackGroup())
         self.add_post_set_parameters_callback(self._on_parameters_set)
-        self.recorder = self._open_recorder(config['record_path'], qos)
+        self.recorder = self._open_recorder(config['record_path'], input_qos)
         self.get_logger().info(
             f'reconstructing {self.tracks_sub.topic_name} -> {self.points_pub.topic_name}: '
             f'window {self.pipeline.window_size}, stride {self.pipeline.window_stride}')

@@ -28,21 +28,25 @@ RIGID_LAUNCH = ('import sys; from test_pipeline import RigidALS, RigidWarmStart;
 class Feeder:
     """This process's side: publishes ``tracks``, collects ``points`` and ``/diagnostics``."""
 
-    def __init__(self, namespace, subscribers=1):
+    def __init__(self, namespace, subscribers=1, keep_points=True):
         self.subscribers = subscribers              # the node's tracks subscriptions
+        self.points_received = 0                    # counted even when not kept (load runs)
         self.context = rclpy.Context()
         rclpy.init(context=self.context)
         self.node = rclpy.create_node('feeder', namespace=namespace, context=self.context)
         self.pub = self.node.create_publisher(PointCloud2, 'tracks', 10)
         self.points, self.diagnostics = [], []
-        self.points_sub = self.node.create_subscription(PointCloud2, 'points',
-                                                        self.points.append, 10)
+        self.points_sub = self.node.create_subscription(
+            PointCloud2, 'points', self.points.append if keep_points else self._count_point, 10)
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 10)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._spin, daemon=True)
         self._thread.start()
+
+    def _count_point(self, msg):
+        self.points_received += 1
 
     def _on_diagnostics(self, msg):
         if any(s.hardware_id == self.node.get_namespace() + '/grass_nrsfm' for s in msg.status):
@@ -61,6 +65,13 @@ class Feeder:
     def connected(self):
         return (self.pub.get_subscription_count() >= self.subscribers
                 and self.node.count_publishers(self.node.get_namespace() + '/points') > 0)
+
+    def use_depth(self, depth):
+        """Publish ``tracks`` with a KEEP_LAST history of ``depth`` (reliable) from now on."""
+        if depth != self.pub.qos_profile.depth:
+            self.node.destroy_publisher(self.pub)
+            self.pub = self.node.create_publisher(PointCloud2, 'tracks', depth)
+            assert self.wait_for(self.connected, 20)
 
     def diagnostic_values(self):
         """``{key: value}`` of the newest diagnostics status (strings), or {}."""
@@ -112,7 +123,7 @@ def stop(proc, sig=signal.SIGINT, timeout=15):
 
 @contextmanager
 def node_with_feeder(env, log, args=(), *, launch=RIGID_LAUNCH, subscribers=1,
-                     preexec_fn=None, connect_timeout=30):
+                     preexec_fn=None, connect_timeout=30, keep_points=True):
     """Start the node (``launch``: Python code run with ``-c`` from test/, extra ROS ``args``)
     in a fresh namespace, its output in ``log``; yield ``(process, feeder)`` once they are
     connected; stop it with SIGINT at the end."""
@@ -121,7 +132,7 @@ def node_with_feeder(env, log, args=(), *, launch=RIGID_LAUNCH, subscribers=1,
         proc = subprocess.Popen(
             [sys.executable, '-c', launch, '--ros-args', '-r', f'__ns:={namespace}', *args],
             cwd=TEST_DIR, env=env, stdout=out, stderr=subprocess.STDOUT, preexec_fn=preexec_fn)
-    feeder = Feeder(namespace, subscribers=subscribers)
+    feeder = Feeder(namespace, subscribers=subscribers, keep_points=keep_points)
     try:
         assert feeder.wait_for(feeder.connected, connect_timeout), Path(log).read_text()
         yield proc, feeder

@@ -305,3 +305,42 @@ def test_broken_bags_give_one_clear_line_and_exit_2(broken_bags, tmp_path, comma
     assert 'Traceback' not in out.stdout + out.stderr
     assert not (tmp_path / 'out').exists()          # no half-written output
     FIGURES.setdefault('broken_bags_rejected', []).append(f'{command} {case}')
+
+
+# -- load ----------------------------------------------------------------------------------------
+def _short_load(tmp_path, record):
+    pytest.importorskip('rclpy')
+    sys.path.insert(0, str(REPO))
+    from bench import load
+    return load.run(seconds=12, points=2000, rate=30, solver='rigid', record=record,
+                    tmp=tmp_path, depth=100, log=lambda *a: None)
+
+
+def _check_load(figures):
+    assert 'error' not in figures, figures
+    assert figures['frames unaccounted'] == 0, figures
+    assert figures['messages received'] == figures['sent'], figures
+    # memory flat after warm-up: measured growth 5-14 MB over 12 s (the points and the
+    # allocator settling); a leak of one 2k-point cloud per frame would be > 30 MB
+    assert figures['rss_mb']['growth_after_warmup'] < 25, figures['rss_mb']
+
+
+@pytest.mark.ros
+def test_short_load_every_frame_accounted_memory_flat(ros_env, tmp_path):
+    figures = _short_load(tmp_path, record=False)
+    figure('load_short_no_recording', **{k: v for k, v in figures.items() if k != 'rss_mb'},
+           rss_growth_mb=figures.get('rss_mb', {}).get('growth_after_warmup'))
+    _check_load(figures)
+
+
+@pytest.mark.ros
+@pytest.mark.xfail(reason='with recording on, the node loses input messages under sustained '
+                          'load (DDS history overflow while the executor stalls; measured '
+                          '356/450 received at 2k points, 706/1800 at 30k): not fixed yet',
+                   strict=False)
+def test_short_load_with_recording_loses_nothing(ros_env, tmp_path):
+    figures = _short_load(tmp_path, record=True)
+    figure('load_short_recording', **{k: v for k, v in figures.items() if k != 'rss_mb'},
+           rss_growth_mb=figures.get('rss_mb', {}).get('growth_after_warmup'))
+    _check_load(figures)
+    assert figures['recording_complete'], figures
