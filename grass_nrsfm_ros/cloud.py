@@ -40,51 +40,80 @@ class Tracks:
 
 
 def _field_dtype(field, byteorder):
-    code = int(field.datatype)
+    code = _uint(field, 'datatype', 8)
     if code not in DATATYPE_TO_DTYPE:
         raise CloudError(f'field {field.name!r} has unknown datatype {code}')
-    if int(getattr(field, 'count', 1)) != 1:
+    count = _uint(field, 'count') if hasattr(field, 'count') else 1
+    if count != 1:
         raise CloudError(f'field {field.name!r} has count {field.count}; only 1 is supported')
     return DATATYPE_TO_DTYPE[code].newbyteorder(byteorder)
+
+
+def _uint(msg_part, name, bits=32):
+    """``msg_part.name`` as an int in ``0 .. 2**bits - 1`` (the PointCloud2 field types)."""
+    value = getattr(msg_part, name)
+    try:
+        value = int(value)
+    except (TypeError, ValueError, OverflowError):
+        raise CloudError(f'{name} {value!r} is not an integer') from None
+    if not 0 <= value < 2 ** bits:
+        raise CloudError(f'{name} {value} outside the uint{bits} range')
+    return value
+
+
+def _bytes_of(data):
+    """``data`` (bytes-like, uint8 array or sequence of ints 0..255) as a uint8 array."""
+    try:
+        if isinstance(data, (bytes, bytearray, memoryview)):
+            return np.frombuffer(data, dtype=np.uint8)
+        raw = np.asarray(data)
+        if raw.dtype != np.uint8:
+            raw = np.asarray(data, dtype=np.int64)
+            if raw.size and (raw.min() < 0 or raw.max() > 255):
+                raise ValueError('values outside 0..255')
+            raw = raw.astype(np.uint8)
+        return raw.reshape(-1)
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise CloudError(f'data is not a byte buffer ({type(data).__name__}: {exc})') from None
 
 
 def structured_view(msg, wanted):
     """Zero-copy structured view of the ``wanted`` fields of a cloud: ``(height*width,)``.
 
     ``wanted`` maps field name -> allowed datatype codes. Raises CloudError on a missing field,
-    a wrong datatype, fields outside ``point_step``, or ``data`` shorter than the declared layout.
+    a wrong datatype, fields outside ``point_step``, integers outside their ROS types, or
+    ``data`` shorter than the declared layout (checked before anything of the declared size is
+    allocated).
     """
     byteorder = '>' if bool(msg.is_bigendian) else '<'
     fields = {f.name: f for f in msg.fields}
     names, formats, offsets = [], [], []
-    point_step = int(msg.point_step)
+    point_step = _uint(msg, 'point_step')
     for name, allowed in wanted.items():
         if name not in fields:
-            raise CloudError(f'missing field {name!r} (has {sorted(fields)})')
+            raise CloudError(f'missing field {name!r} (has {sorted(map(str, fields))})')
         f = fields[name]
-        if int(f.datatype) not in allowed:
+        if _uint(f, 'datatype', 8) not in allowed:
             raise CloudError(f'field {name!r} has datatype {int(f.datatype)}; '
                              f'expected one of {list(allowed)}')
         dt = _field_dtype(f, byteorder)
-        if int(f.offset) < 0 or int(f.offset) + dt.itemsize > point_step:
+        if _uint(f, 'offset') + dt.itemsize > point_step:
             raise CloudError(f'field {name!r} at offset {f.offset} does not fit point_step '
                              f'{point_step}')
         names.append(name)
         formats.append(dt)
         offsets.append(int(f.offset))
-    height, width = int(msg.height), int(msg.width)
-    if height < 0 or width < 0 or height * width > MAX_POINTS:
+    height, width = _uint(msg, 'height'), _uint(msg, 'width')
+    if height * width > MAX_POINTS:
         raise CloudError(f'cloud size {height}x{width} outside 0..{MAX_POINTS} points')
     n = height * width
     if n == 0:
         return np.zeros(0, dtype=np.dtype({'names': names, 'formats': formats,
-                                           'offsets': offsets, 'itemsize': point_step}))
-    row_step = int(msg.row_step)
+                                           'offsets': offsets}))
+    row_step = _uint(msg, 'row_step')
     if row_step < point_step * width:
         raise CloudError(f'row_step {row_step} < point_step {point_step} x width {width}')
-    data = msg.data
-    buf = data if isinstance(data, (bytes, bytearray, memoryview)) else np.asarray(data, 'u1')
-    raw = np.frombuffer(buf, dtype=np.uint8)
+    raw = _bytes_of(msg.data)
     need = row_step * (height - 1) + point_step * width
     if raw.size < need:
         raise CloudError(f'data has {raw.size} bytes; layout needs {need}')
@@ -106,7 +135,8 @@ def decode_tracks(msg):
     """
     view = structured_view(msg, TRACK_FIELDS)
     ids = view['track_id'].astype(np.uint32)
-    uv = np.stack([view['u'].astype(np.float64), view['v'].astype(np.float64)], axis=1)
+    with np.errstate(invalid='ignore'):              # signalling NaNs in float32 data
+        uv = np.stack([view['u'].astype(np.float64), view['v'].astype(np.float64)], axis=1)
     finite = np.isfinite(uv).all(axis=1)
     ids, uv = ids[finite], uv[finite]
     unique, counts = np.unique(ids, return_counts=True)

@@ -14,7 +14,6 @@ and the pipeline still publishes every frame that window covers.
 Start: ``ros2 run grass_nrsfm_ros node --ros-args ...``, ``grass-nrsfm node --ros-args ...``
 or ``python -m grass_nrsfm_ros.node --ros-args ...``.
 """
-from concurrent.futures import ThreadPoolExecutor
 import os
 import re
 import sys
@@ -43,6 +42,12 @@ from grass_nrsfm_ros.pipeline import (default_solver_factory, FrameError, Slidin
 POINTCLOUD2 = 'sensor_msgs/msg/PointCloud2'
 LOG_PERIOD_S = 10.0          # the same kind of problem is logged at most once per period
 ACK_TIMEOUT_S = 2.0           # longest wait for subscribers to take a burst of clouds
+INPUT_DEPTH = 100            # tracks messages the node's reader keeps (3 s at 30 Hz)
+CLOSE_GRACE_S = 1.0          # close() waits this long for a running solve, then leaves it
+
+
+class SolveCancelled(Exception):
+    """Raised in the solver's progress callback once the node is stopping."""
 
 
 def descriptor(spec):
@@ -120,12 +125,16 @@ class ReconstructionNode(Node):
         self._last_solve = {}
         self._lock = threading.Lock()
         self._pending, self._busy = None, False
-        self._worker = ThreadPoolExecutor(1, thread_name_prefix='grass_nrsfm_solve')
+        self._stopping = threading.Event()
+        self._solve_thread = None
         qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        # input: a history of INPUT_DEPTH frames, so a stall of the executor (the solver holding
+        # the GIL, a busy core) delays frames instead of overwriting them unseen
+        input_qos = QoSProfile(depth=INPUT_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
         overrides = QoSOverridingOptions.with_default_policies()
         self._input_group = MutuallyExclusiveCallbackGroup()
         self.tracks_sub = self.create_subscription(
-            PointCloud2, 'tracks', self._on_tracks, qos, callback_group=self._input_group,
+            PointCloud2, 'tracks', self._on_tracks, input_qos, callback_group=self._input_group,
             qos_overriding_options=overrides)
         self.points_pub = self.create_publisher(PointCloud2, 'points', qos,
                                                 qos_overriding_options=overrides)
@@ -133,7 +142,7 @@ class ReconstructionNode(Node):
         self.create_timer(1.0, self._publish_diagnostics,
                           callback_group=MutuallyExclusiveCallbackGroup())
         self.add_post_set_parameters_callback(self._on_parameters_set)
-        self.recorder = self._open_recorder(config['record_path'], qos)
+        self.recorder = self._open_recorder(config['record_path'], input_qos)
         self.get_logger().info(
             f'reconstructing {self.tracks_sub.topic_name} -> {self.points_pub.topic_name}: '
             f'window {self.pipeline.window_size}, stride {self.pipeline.window_stride}')
@@ -222,19 +231,36 @@ class ReconstructionNode(Node):
                 self._pending = window
                 return
             self._busy = True
-        self._worker.submit(self._solve_loop, window)
+            # a daemon thread: a solve that ignores cancellation cannot hold up the exit
+            self._solve_thread = threading.Thread(target=self._solve_loop, args=(window,),
+                                                  name='grass_nrsfm_solve', daemon=True)
+            self._solve_thread.start()
 
     def _solve_loop(self, window):
-        while window is not None:
-            self._solve_and_publish(window)
+        while window is not None and not self._stopping.is_set():
+            try:
+                self._solve_and_publish(window)
+            except Exception:
+                if not self._stopping.is_set():
+                    raise
+                break                   # the node was torn down under a solve left behind
             with self._lock:
                 window, self._pending = self._pending, None
                 self._busy = window is not None
+        with self._lock:
+            self._busy = False
+
+    def _cancel_if_stopping(self, iteration, report):
+        """The solver's progress callback: abandon the solve once the node is stopping."""
+        if self._stopping.is_set():
+            raise SolveCancelled(f'stopping at iteration {iteration}')
 
     def _solve_and_publish(self, window):
         started = time.monotonic()
         try:
-            results = self.pipeline.solve(window)
+            results = self.pipeline.solve(window, progress=self._cancel_if_stopping)
+        except SolveCancelled:
+            return
         except WindowError as exc:
             self._counts['solve_errors'] += 1
             return self._log.warning(f'window not solved: {exc}')
@@ -250,7 +276,8 @@ class ReconstructionNode(Node):
             iterations=getattr(report, 'iterations', ''),
             reprojection_residual=self.pipeline.previous.residual,
             tracks_in_window=window.ids.size, frames_in_window=window.n_frames)
-        self._publish_diagnostics()
+        if not self._stopping.is_set():
+            self._publish_diagnostics()
 
     def _publish_paced(self, results):
         """Publish a window's frames, at most one QoS history (``depth``) ahead of the slowest
@@ -263,6 +290,8 @@ class ReconstructionNode(Node):
             self._publish(result)
 
     def _publish(self, result):
+        if self._stopping.is_set():
+            return
         header = Header(stamp=to_stamp(result.stamp_ns),
                         frame_id=self._frame_id or result.frame_id)
         msg = cloud.encode_points(result.xyz, result.ids, header)
@@ -279,7 +308,9 @@ class ReconstructionNode(Node):
                   **self._last_solve, 'messages received': self._counts['messages'],
                   'dropped messages': self._counts['dropped_messages'],
                   'dropped windows': self._counts['dropped_windows'],
-                  'frames lost': stats['frames_lost'], 'sequences': stats['resets'] + 1,
+                  'frames lost': stats['frames_lost'],
+                  'frames pending': self.pipeline.pending_frames,
+                  'sequences': stats['resets'] + 1,
                   'windows not solved': self._counts['solve_errors']}
         message = 'falling behind: skipping to the newest window' if behind else 'ok'
         level = DiagnosticStatus.WARN if behind else DiagnosticStatus.OK
@@ -292,11 +323,18 @@ class ReconstructionNode(Node):
         self.diagnostics_pub.publish(DiagnosticArray(
             header=Header(stamp=self.get_clock().now().to_msg()), status=[status]))
 
-    def close(self):
-        """Wait for the running solve, then close the recording."""
+    def close(self, grace=CLOSE_GRACE_S):
+        """Stop solving (a running solve is cancelled through its progress callback, or left
+        behind on its daemon thread after ``grace`` seconds), then close the recording."""
+        self._stopping.set()
         with self._lock:
             self._pending = None
-        self._worker.shutdown(wait=True, cancel_futures=True)
+            thread = self._solve_thread
+        if thread is not None:
+            thread.join(grace)
+            if thread.is_alive():
+                self.get_logger().warning(f'a solve is still running after {grace:g} s; '
+                                          'exiting without its result')
         if self.recorder is not None:
             self.recorder.close()
             self.recorder = None

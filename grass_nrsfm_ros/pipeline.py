@@ -118,6 +118,17 @@ def _warm_start_class():
     return WarmStart
 
 
+def _takes_progress(fit):
+    """True if ``fit`` accepts a ``progress`` keyword."""
+    import inspect
+
+    try:
+        params = inspect.signature(fit).parameters
+    except (TypeError, ValueError):
+        return False
+    return 'progress' in params or any(p.kind == p.VAR_KEYWORD for p in params.values())
+
+
 def default_solver_factory(**solver_kwargs):
     """A factory of ``GrassmannNRSfM(**solver_kwargs)`` (imported when first called)."""
     def make():
@@ -163,12 +174,13 @@ class SlidingWindow:
     def add_frame(self, stamp_ns, ids, uv, frame_id=''):
         """Buffer one frame; return the windows it closes (usually none, sometimes one; two
         when all ids changed). Raises FrameError for a refused frame."""
-        frame = self._checked_frame(int(stamp_ns), ids, uv, str(frame_id))
+        frame, new_sequence = self._checked_frame(int(stamp_ns), ids, uv, str(frame_id))
         windows = []
-        if self._frames and self._shared(frame, self._frames[-1]) < self.min_tracks:
+        if new_sequence:
             windows += self.flush()
             self._frames = []
             self._sequence += 1
+            self._emitted_until = None          # a new sequence's stamps may start earlier
             self._count('resets')
         stamps = [f.stamp_ns for f in self._frames]
         self._frames.insert(bisect_left(stamps, frame.stamp_ns), frame)
@@ -186,6 +198,8 @@ class SlidingWindow:
                  or f.stamp_ns > self._emitted_until]
         if not fresh or len(frames) < MIN_WINDOW_FRAMES:
             self._count('frames_lost', len(fresh))
+            if fresh:                           # given up: not pending, not lost twice
+                self._emitted_until = fresh[-1].stamp_ns
             return []
         return [self._emit(frames)]
 
@@ -205,15 +219,19 @@ class SlidingWindow:
             ids, uv = ids[order].astype(np.uint32), uv[order]
             if (ids[1:] == ids[:-1]).any():
                 raise FrameError(f'duplicate track id {int(ids[1:][ids[1:] == ids[:-1]][0])}')
-            if self._emitted_until is not None and stamp_ns <= self._emitted_until:
+            new_sequence = bool(self._frames) and self._shared(
+                Frame(stamp_ns, frame_id, ids, uv), self._frames[-1]) < self.min_tracks
+            if new_sequence:
+                pass                            # its stamps are not compared with the old ones
+            elif self._emitted_until is not None and stamp_ns <= self._emitted_until:
                 raise FrameError(f'late frame: stamp {stamp_ns} is not newer than the last '
                                  f'emitted window ({self._emitted_until})')
-            if any(f.stamp_ns == stamp_ns for f in self._frames):
+            elif any(f.stamp_ns == stamp_ns for f in self._frames):
                 raise FrameError(f'duplicate stamp {stamp_ns} (the first frame is kept)')
         except FrameError:
             self._count('refused')
             raise
-        return Frame(stamp_ns, frame_id, ids, uv)
+        return Frame(stamp_ns, frame_id, ids, uv), new_sequence
 
     @staticmethod
     def _shared(a, b):
@@ -237,9 +255,11 @@ class SlidingWindow:
         return window
 
     # -- solve side -------------------------------------------------------------------------
-    def solve(self, window):
+    def solve(self, window, progress=None):
         """Reconstruct ``window``; return FrameResults of its frames not yet published (in stamp
-        order). Raises WindowError when its frames share fewer than ``min_tracks`` tracks."""
+        order). Raises WindowError when its frames share fewer than ``min_tracks`` tracks.
+        ``progress(iteration, report)`` is handed to solvers whose ``fit`` takes it (an
+        exception raised there abandons the solve and propagates)."""
         if window.ids.size < self.min_tracks:
             self._count('failed')
             raise WindowError(f'window {window.index}: its {window.n_frames} frames share '
@@ -247,11 +267,18 @@ class SlidingWindow:
         Wc, _ = centre(window.W)
         init = self._warm_start_for(window, Wc) if self.warm_start else None
         solver = self.solver_factory()
-        result = solver.fit(window.W, init=init) if init is not None else solver.fit(window.W)
+        kwargs = {} if init is None else {'init': init}
+        if progress is not None and _takes_progress(solver.fit):
+            kwargs['progress'] = progress
+        result = solver.fit(window.W, **kwargs)
         S = np.array(result.S, dtype=np.float64)
+        R = np.array(result.R, dtype=np.float64)
+        if not (np.isfinite(S).all() and np.isfinite(R).all()):
+            self._count('failed')
+            raise WindowError(f'window {window.index}: the solver returned non-finite shapes or '
+                              'rotations; nothing published')
         Z = as_frames(S, 3)[:, 2, :]
         Z -= Z.mean(axis=1, keepdims=True)
-        R = np.array(result.R, dtype=np.float64)
         if self.align_windows and self._depth_disagrees(window, Z):
             S = DEPTH_FLIP @ as_frames(S, 3)
             S = S.reshape(-1, S.shape[-1])
@@ -351,6 +378,16 @@ class SlidingWindow:
     def _count(self, key, n=1):
         with self._lock:
             self.stats[key] += n
+
+    @property
+    def pending_frames(self):
+        """Accepted frames neither published nor counted lost yet: buffered for a window that
+        has not closed, or in a window not yet solved. At any time ``stats['frames'] ==
+        stats['published'] + stats['frames_lost'] + pending_frames``."""
+        frames = list(self._frames)
+        waiting = sum(1 for f in frames
+                      if self._emitted_until is None or f.stamp_ns > self._emitted_until)
+        return len(self._unpublished) + waiting
 
     @property
     def previous(self):

@@ -5,6 +5,7 @@ cleanly where it is absent.
 """
 import os
 from pathlib import Path
+import random
 
 import numpy as np
 import pytest
@@ -30,3 +31,18 @@ def load_dataset(relpath):
 @pytest.fixture
 def dataset():
     return load_dataset
+
+
+@pytest.fixture
+def ros_env(tmp_path, monkeypatch):
+    """Isolated DDS for this process and the subprocesses it starts: a random domain (0..101),
+    localhost discovery, logs in tmp, one BLAS thread. Returns the environment for
+    subprocesses (PYTHONPATH: the checkout and test/, so test helpers import)."""
+    pytest.importorskip('rclpy')
+    env = {'ROS_DOMAIN_ID': str(random.randint(0, 101)),
+           'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST', 'ROS_LOG_DIR': str(tmp_path / 'log'),
+           'OPENBLAS_NUM_THREADS': '1', 'OMP_NUM_THREADS': '1'}
+    for key, value in env.items():
+        monkeypatch.setenv(key, value)
+    monkeypatch.delenv('ROS_LOCALHOST_ONLY', raising=False)
+    return {**os.environ, 'PYTHONPATH': os.pathsep.join([str(REPO), str(REPO / 'test')])}

@@ -5,13 +5,7 @@ checked against ground truth; malformed clouds are interleaved with good ones.
 The node runs with the rigid solver of test_pipeline (injected through ``main``), so these tests
 exercise the node and the pipeline, not the Grassmannian solver.
 """
-import os
-from pathlib import Path
-import random
 import signal
-import subprocess
-import sys
-import threading
 import time
 
 import numpy as np
@@ -23,75 +17,14 @@ from grass_nrsfm_ros.nrsfm.metrics import e3d, e3d_akhter
 
 rclpy = pytest.importorskip('rclpy')
 from builtin_interfaces.msg import Time  # noqa: E402, I100
-from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from sensor_msgs.msg import PointCloud2, PointField  # noqa: E402
 from std_msgs.msg import Header  # noqa: E402
+from rosutil import node_with_feeder  # noqa: E402, I100
 from test_pipeline import make_sequence  # noqa: E402
 
 pytestmark = pytest.mark.ros
-TEST_DIR = Path(__file__).resolve().parent
-REPO = TEST_DIR.parent
-LAUNCH = ('import sys; from test_pipeline import RigidALS, RigidWarmStart; '
-          'from grass_nrsfm_ros.node import main; '
-          'sys.exit(main(solver_factory=RigidALS, warm_start_class=RigidWarmStart))')
 PERIOD = 1 / 30
 T0 = 1_700_000_000_000_000_000
-
-
-@pytest.fixture
-def ros_env(tmp_path, monkeypatch):
-    """Isolated ROS settings for this process and the node's."""
-    env = {'ROS_DOMAIN_ID': str(random.randint(0, 101)),
-           'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST', 'ROS_LOG_DIR': str(tmp_path / 'log'),
-           'OPENBLAS_NUM_THREADS': '1', 'OMP_NUM_THREADS': '1'}
-    for key, value in env.items():
-        monkeypatch.setenv(key, value)
-    monkeypatch.delenv('ROS_LOCALHOST_ONLY', raising=False)
-    return {**os.environ, 'PYTHONPATH': os.pathsep.join([str(REPO), str(TEST_DIR)])}
-
-
-class Feeder:
-    """This process's side: publishes ``tracks``, collects ``points`` and ``/diagnostics``."""
-
-    def __init__(self, namespace, subscribers=1):
-        self.subscribers = subscribers              # the node's tracks subscriptions
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context)
-        self.node = rclpy.create_node('feeder', namespace=namespace, context=self.context)
-        self.pub = self.node.create_publisher(PointCloud2, 'tracks', 10)
-        self.points, self.diagnostics = [], []
-        self.node.create_subscription(PointCloud2, 'points', self.points.append, 10)
-        self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 10)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._spin, daemon=True)
-        self._thread.start()
-
-    def _on_diagnostics(self, msg):
-        if any(s.hardware_id == self.node.get_namespace() + '/grass_nrsfm' for s in msg.status):
-            self.diagnostics.append(msg)
-
-    def _spin(self):
-        while not self._stop.is_set():
-            self.executor.spin_once(timeout_sec=0.05)
-
-    def wait_for(self, condition, timeout):
-        deadline = time.monotonic() + timeout
-        while not condition() and time.monotonic() < deadline:
-            time.sleep(0.05)
-        return condition()
-
-    def connected(self):
-        return (self.pub.get_subscription_count() >= self.subscribers
-                and self.node.count_publishers(self.node.get_namespace() + '/points') > 0)
-
-    def close(self):
-        self._stop.set()
-        self._thread.join()
-        self.node.destroy_node()
-        rclpy.shutdown(context=self.context)
 
 
 @pytest.fixture
@@ -99,28 +32,12 @@ def node_process(ros_env, tmp_path, request):
     """Start the node (extra ROS arguments: indirect parameter); yield (process, log path,
     feeder); stop it with SIGINT."""
     log = tmp_path / 'node.log'
-    namespace = f'/test_{os.getpid()}_{random.randrange(10 ** 6)}'    # in case domains collide
     args = getattr(request, 'param', ())
     extra = [a.format(tmp=tmp_path) for a in args]
-    with open(log, 'w') as out:
-        proc = subprocess.Popen(
-            [sys.executable, '-c', LAUNCH, '--ros-args', '-r', f'__ns:={namespace}',
-             '-p', 'frame_id:=cam_optical', *extra],
-            cwd=TEST_DIR, env=ros_env, stdout=out, stderr=subprocess.STDOUT)
     recording = any(a.startswith('record_path:={tmp}') for a in args)
-    feeder = Feeder(namespace, subscribers=2 if recording else 1)
-    try:
-        assert feeder.wait_for(feeder.connected, 30), log.read_text()
+    with node_with_feeder(ros_env, log, ['-p', 'frame_id:=cam_optical', *extra],
+                          subscribers=2 if recording else 1) as (proc, feeder):
         yield proc, log, feeder
-    finally:
-        feeder.close()
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(15)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
 
 
 def header(f):

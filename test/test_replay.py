@@ -1,8 +1,6 @@
 """replay: a real rclpy subscriber in this process receives what a replay subprocess publishes,
 with the recorded stamps and the recorded timing scaled by --rate. (Marked ros.)"""
-import os
 from pathlib import Path
-import random
 import subprocess
 import sys
 import time
@@ -16,19 +14,6 @@ from grass_nrsfm_ros.cloud import decode_tracks
 pytestmark = pytest.mark.ros
 REPO = Path(__file__).resolve().parents[1]
 TOLERANCE_S = 0.030    # per-message timing error allowed; measured p50 ~1 ms on 2 loaded cores
-
-
-@pytest.fixture
-def ros_env(tmp_path, monkeypatch):
-    """Isolated DDS: localhost discovery, a random domain, logs in tmp."""
-    pytest.importorskip('rclpy')
-    env = {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
-           'ROS_DOMAIN_ID': str(random.randint(0, 101)),
-           'ROS_LOG_DIR': str(tmp_path / 'log')}
-    for k, v in env.items():
-        monkeypatch.setenv(k, v)
-    monkeypatch.delenv('ROS_LOCALHOST_ONLY', raising=False)
-    return {**os.environ, **env, 'PYTHONPATH': str(REPO)}
 
 
 def receive(env, bag_path, n_expected, extra=(), timeout=60.0, clock=False):

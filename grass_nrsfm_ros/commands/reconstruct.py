@@ -85,17 +85,31 @@ def reconstruct_npz(args):
 
 
 def reconstruct_bag_file(args):
-    """The node's sliding-window pipeline over a tracks bag, offline, into an output bag."""
-    from grass_nrsfm_ros.bag import reconstruct_bag, text_progress
+    """The node's sliding-window pipeline over a tracks bag, offline, into an output bag; a
+    refused input (corrupt or truncated bag, missing topic) leaves no output behind."""
+    import shutil
+
+    from grass_nrsfm_ros import bag
     from grass_nrsfm_ros.params import load_config, solver_kwargs, window_kwargs
     from grass_nrsfm_ros.pipeline import default_solver_factory, SlidingWindow
 
     config = load_config(args.config) if args.config else {}
+    known = bag.topics(args.input)                      # corrupt bags fail here, before output
+    if args.topic not in known:
+        raise bag.TopicNotFoundError(f'bag {args.input} has no topic {args.topic!r} (topics: '
+                                     f'{", ".join(sorted(known)) or "none"})')
     pipeline = SlidingWindow(default_solver_factory(**solver_kwargs(config)),
                              **window_kwargs(config),
                              metres_per_pixel=config.get('metres_per_pixel', 1.0))
-    report = reconstruct_bag(args.input, args.output, pipeline, topic=args.topic,
-                             progress=None if args.quiet else text_progress())
+    out = Path(args.output)
+    existed = out.exists()
+    try:
+        report = bag.reconstruct_bag(args.input, out, pipeline, topic=args.topic,
+                                     progress=None if args.quiet else bag.text_progress())
+    except BaseException:
+        if not existed and out.exists():
+            shutil.rmtree(out)                          # no half-written output bag
+        raise
     print(f'{args.input}: {report.frames_in} frames in, {report.frames_out} reconstructed in '
           f'{report.windows} windows, {report.seconds:.1f} s -> {args.output}')
     for line in report.refused:

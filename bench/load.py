@@ -1,0 +1,171 @@
+"""Sustained load on the node: a ``rate`` Hz stream of ``points``-point tracks clouds for
+``seconds``, over DDS from this process to the node in its own process (isolated domain).
+
+Reports the node's memory (RSS sampled every second), frames sent / published / skipped (the
+node's diagnostics), the accounting (every message received is dropped, published, counted as
+lost (skipped windows) or pending: ``frames unaccounted`` must be 0) and the recording's
+completeness (messages in the recorded bag vs sent and published).
+
+    python -m bench.load                      # 10 min, 30 Hz, 30,000 points, rigid test solver
+    python -m bench.load --seconds 20 --points 2000 --solver grassmann
+
+``--solver rigid`` injects the rigid solver of test/test_pipeline (the node and pipeline under
+load, not the Grassmannian solver's speed); ``grassmann`` runs the node as shipped. Results go
+to ``bench/results/reliability.json`` under ``load`` (and are printed).
+"""
+import argparse
+import json
+import os
+from pathlib import Path
+import random
+import signal
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+RESULTS = REPO / 'bench' / 'results' / 'reliability.json'
+DEFAULT_LAUNCH = 'import sys; from grass_nrsfm_ros.node import main; sys.exit(main())'
+
+
+def isolated_env(tmp):
+    """Environment for this process and the node: random domain, localhost, logs in ``tmp``."""
+    env = {'ROS_DOMAIN_ID': str(random.randint(0, 101)),
+           'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST', 'ROS_LOG_DIR': str(Path(tmp) / 'log'),
+           'OPENBLAS_NUM_THREADS': '1', 'OMP_NUM_THREADS': '1'}
+    os.environ.update(env)
+    os.environ.pop('ROS_LOCALHOST_ONLY', None)
+    return {**os.environ, 'PYTHONPATH': os.pathsep.join([str(REPO), str(REPO / 'test')])}
+
+
+def rss_mb(pid):
+    """Resident memory of process ``pid`` in MB (from /proc), or None once it has gone."""
+    try:
+        with open(f'/proc/{pid}/status') as f:
+            for line in f:
+                if line.startswith('VmRSS:'):
+                    return int(line.split()[1]) / 1024
+    except OSError:
+        return None
+    return None
+
+
+def clouds(points, n_frames=90, seed=0):
+    """``n_frames`` distinct tracks clouds (rclpy) of a bending sheet, re-stamped when sent."""
+    from std_msgs.msg import Header
+
+    from grass_nrsfm_ros import cloud
+    from grass_nrsfm_ros.nrsfm.measurement import as_frames
+    from grass_nrsfm_ros.nrsfm.synthetic import make_sequence
+
+    seq = make_sequence('bending', n_frames, points, camera='orbit', seed=seed)
+    W = seq.W * 200 + 320
+    ids = np.arange(points, dtype=np.uint32)
+    return [cloud.encode_tracks(ids, uv.T, Header(frame_id='camera'))
+            for uv in as_frames(W, 2)]
+
+
+def run(seconds=600.0, points=30_000, rate=30.0, solver='rigid', window=30, stride=10,
+        record=True, tmp=None, log=print, depth=10):
+    """Run the load; return the figures (a dict)."""
+    sys.path.insert(0, str(REPO / 'test'))
+    tmp = Path(tmp or tempfile.mkdtemp(prefix='grass_load_'))
+    env = isolated_env(tmp)
+    import rosutil
+
+    from grass_nrsfm_ros import bag
+
+    launch = rosutil.RIGID_LAUNCH if solver == 'rigid' else DEFAULT_LAUNCH
+    args = ['-p', f'window_size:={window}', '-p', f'window_stride:={stride}']
+    if record:
+        args += ['-p', f'record_path:={tmp}/recording']
+    messages = clouds(points)
+    period = 1.0 / rate
+    n_total = int(round(seconds * rate))
+    rss, late = [], 0
+    with rosutil.node_with_feeder(env, tmp / 'node.log', args, launch=launch,
+                                  subscribers=2 if record else 1,
+                                  keep_points=False) as (proc, feeder):
+        feeder.use_depth(depth)
+        start = time.monotonic()
+        next_sample = start
+        t0_ns = time.time_ns()
+        for k in range(n_total):
+            due = start + k * period
+            now = time.monotonic()
+            if now < due:
+                time.sleep(due - now)
+            elif now - due > period:
+                late += 1
+            msg = messages[k % len(messages)]
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(
+                t0_ns + int(k * period * 1e9), 10 ** 9)
+            feeder.pub.publish(msg)
+            if time.monotonic() >= next_sample:
+                rss.append((round(time.monotonic() - start, 1), rss_mb(proc.pid)))
+                next_sample += 1.0
+                if len(rss) % 60 == 0:
+                    log(f'{rss[-1][0]:.0f} s: sent {k + 1}, node RSS {rss[-1][1]:.0f} MB')
+        send_seconds = time.monotonic() - start
+        counts = feeder.accounted(n_total, timeout=120)
+        rss.append((round(time.monotonic() - start, 1), rss_mb(proc.pid)))
+        received_points = feeder.points_received
+        code = rosutil.stop(proc, signal.SIGINT, timeout=60)
+    figures = dict(seconds=seconds, points=points, rate=rate, solver=solver, window=window,
+                   stride=stride, sent=n_total, send_seconds=round(send_seconds, 1),
+                   sends_late_by_more_than_a_period=late, exit_code=code,
+                   points_clouds_received_by_subscriber=received_points)
+    if counts is None:
+        figures['error'] = 'diagnostics never settled'
+        figures['last_diagnostics'] = feeder.diagnostic_values()
+        return figures
+    figures.update(counts)
+    figures['frames unaccounted'] = n_total - (counts['dropped messages'] +
+                                               counts['frames published'] +
+                                               counts['frames lost'] + counts['frames pending'])
+    values = np.array([m for _, m in rss if m is not None])
+    warm = values[len(values) // 5:] if len(values) >= 5 else values     # after 20 %: warm-up
+    figures['rss_mb'] = dict(start=round(float(values[0]), 1), after_warmup=round(
+        float(warm[0]), 1), max=round(float(values.max()), 1), end=round(float(values[-1]), 1),
+        growth_after_warmup=round(float(warm.max() - warm[0]), 1),
+        samples=[(t, round(m, 1)) for t, m in rss[::max(1, len(rss) // 60)] if m is not None])
+    if record:
+        topics = bag.topics(tmp / 'recording')
+        figures['recorded'] = {t.rsplit('/', 1)[-1]: n for t, (_, n) in topics.items()}
+        figures['recording_complete'] = (
+            figures['recorded'].get('tracks') == n_total
+            and figures['recorded'].get('points') == counts['frames published'])
+        figures['recording_bytes'] = bag.bag_size_bytes(tmp / 'recording')
+    return figures
+
+
+def save(figures, key='load'):
+    RESULTS.parent.mkdir(parents=True, exist_ok=True)
+    old = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
+    old[key] = figures
+    RESULTS.write_text(json.dumps(old, indent=1, sort_keys=True) + '\n')
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    parser.add_argument('--seconds', type=float, default=600.0)
+    parser.add_argument('--points', type=int, default=30_000)
+    parser.add_argument('--rate', type=float, default=30.0)
+    parser.add_argument('--solver', choices=('rigid', 'grassmann'), default='rigid')
+    parser.add_argument('--window', type=int, default=30)
+    parser.add_argument('--stride', type=int, default=10)
+    parser.add_argument('--no-record', dest='record', action='store_false')
+    parser.add_argument('--key', default='load', help='key in reliability.json (load)')
+    args = parser.parse_args(argv)
+    figures = run(args.seconds, args.points, args.rate, args.solver, args.window, args.stride,
+                  args.record)
+    save(figures, args.key)
+    print(json.dumps({k: v for k, v in figures.items() if k != 'rss_mb'}, indent=1))
+    print('rss_mb', {k: v for k, v in figures.get('rss_mb', {}).items() if k != 'samples'})
+    return 0 if figures.get('frames unaccounted') == 0 else 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,141 @@
+"""Helpers for tests that run the node in its own process over DDS (shared by test_node,
+test_faults, test_degenerate and bench/load.py).
+
+The isolated environment itself is the ``ros_env`` fixture in conftest.py (a random domain,
+localhost discovery, logs in a temporary folder); this module needs rclpy.
+"""
+from contextlib import contextmanager
+import os
+from pathlib import Path
+import random
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: I100
+from rclpy.executors import SingleThreadedExecutor
+from sensor_msgs.msg import PointCloud2
+
+TEST_DIR = Path(__file__).resolve().parent
+RIGID_LAUNCH = ('import sys; from test_pipeline import RigidALS, RigidWarmStart; '
+                'from grass_nrsfm_ros.node import main; '
+                'sys.exit(main(solver_factory=RigidALS, warm_start_class=RigidWarmStart))')
+
+
+class Feeder:
+    """This process's side: publishes ``tracks``, collects ``points`` and ``/diagnostics``."""
+
+    def __init__(self, namespace, subscribers=1, keep_points=True):
+        self.subscribers = subscribers              # the node's tracks subscriptions
+        self.points_received = 0                    # counted even when not kept (load runs)
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node('feeder', namespace=namespace, context=self.context)
+        self.pub = self.node.create_publisher(PointCloud2, 'tracks', 10)
+        self.points, self.diagnostics = [], []
+        self.points_sub = self.node.create_subscription(
+            PointCloud2, 'points', self.points.append if keep_points else self._count_point, 10)
+        self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 10)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+
+    def _count_point(self, msg):
+        self.points_received += 1
+
+    def _on_diagnostics(self, msg):
+        if any(s.hardware_id == self.node.get_namespace() + '/grass_nrsfm' for s in msg.status):
+            self.diagnostics.append(msg)
+
+    def _spin(self):
+        while not self._stop.is_set():
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def wait_for(self, condition, timeout):
+        deadline = time.monotonic() + timeout
+        while not condition() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        return condition()
+
+    def connected(self):
+        return (self.pub.get_subscription_count() >= self.subscribers
+                and self.node.count_publishers(self.node.get_namespace() + '/points') > 0)
+
+    def use_depth(self, depth):
+        """Publish ``tracks`` with a KEEP_LAST history of ``depth`` (reliable) from now on."""
+        if depth != self.pub.qos_profile.depth:
+            self.node.destroy_publisher(self.pub)
+            self.pub = self.node.create_publisher(PointCloud2, 'tracks', depth)
+            assert self.wait_for(self.connected, 20)
+
+    def diagnostic_values(self):
+        """``{key: value}`` of the newest diagnostics status (strings), or {}."""
+        if not self.diagnostics:
+            return {}
+        return {kv.key: kv.value for kv in self.diagnostics[-1].status[0].values}
+
+    def accounted(self, sent, timeout=30, quiet=1.5):
+        """Wait until the node's diagnostics count ``sent`` messages received and stay unchanged
+        for ``quiet`` s (no solve running); return them as ints (None on timeout). Then every
+        message is accounted for: ``messages received == dropped messages + frames published +
+        frames lost + frames pending``."""
+        keys = ('messages received', 'dropped messages', 'frames published', 'frames lost',
+                'frames pending', 'windows solved', 'dropped windows')
+        deadline, last, since = time.monotonic() + timeout, None, time.monotonic()
+        while time.monotonic() < deadline:
+            values = self.diagnostic_values()
+            now = tuple(values.get(k) for k in keys)
+            if now != last:
+                last, since = now, time.monotonic()
+            elif (values and int(values['messages received']) >= sent
+                  and time.monotonic() - since >= quiet):
+                return {k: int(values[k]) for k in keys}
+            time.sleep(0.1)
+        return None
+
+    def close(self):
+        self._stop.set()
+        self._thread.join()
+        self.node.destroy_node()
+        rclpy.shutdown(context=self.context)
+
+
+def unique_namespace():
+    return f'/test_{os.getpid()}_{random.randrange(10 ** 6)}'    # in case domains collide
+
+
+def stop(proc, sig=signal.SIGINT, timeout=15):
+    """Stop ``proc`` with ``sig`` (kill it after ``timeout`` s); return its exit code."""
+    if proc.poll() is None:
+        proc.send_signal(sig)
+        try:
+            proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    return proc.returncode
+
+
+@contextmanager
+def node_with_feeder(env, log, args=(), *, launch=RIGID_LAUNCH, subscribers=1,
+                     preexec_fn=None, connect_timeout=30, keep_points=True):
+    """Start the node (``launch``: Python code run with ``-c`` from test/, extra ROS ``args``)
+    in a fresh namespace, its output in ``log``; yield ``(process, feeder)`` once they are
+    connected; stop it with SIGINT at the end."""
+    namespace = unique_namespace()
+    with open(log, 'w') as out:
+        proc = subprocess.Popen(
+            [sys.executable, '-c', launch, '--ros-args', '-r', f'__ns:={namespace}', *args],
+            cwd=TEST_DIR, env=env, stdout=out, stderr=subprocess.STDOUT, preexec_fn=preexec_fn)
+    feeder = Feeder(namespace, subscribers=subscribers, keep_points=keep_points)
+    try:
+        assert feeder.wait_for(feeder.connected, connect_timeout), Path(log).read_text()
+        yield proc, feeder
+    finally:
+        feeder.close()
+        stop(proc)

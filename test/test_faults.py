@@ -1,0 +1,346 @@
+"""Faults: the node killed or stopped mid-work, a recording target that fails, peers that come
+and go, and bags from outside that are broken. The node runs in its own process (test/rosutil),
+with the rigid test solver of test_pipeline unless a test needs a slow one."""
+import json
+import os
+from pathlib import Path
+import resource
+import signal
+import subprocess
+import sys
+import time
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from grass_nrsfm_ros import bag
+from grass_nrsfm_ros.nrsfm.measurement import as_frames
+
+REPO = Path(__file__).resolve().parents[1]
+RESULTS = REPO / 'bench' / 'results' / 'reliability_faults.json'
+FIGURES = {}
+T0 = 1_700_000_000_000_000_000
+PERIOD_NS = 33_333_333
+SLOW_LAUNCH = ('import sys; from test_faults import SlowSolver; '
+               'from test_pipeline import RigidWarmStart; '
+               'from grass_nrsfm_ros.node import main; '
+               'sys.exit(main(solver_factory=SlowSolver, warm_start_class=RigidWarmStart))')
+STUBBORN_LAUNCH = SLOW_LAUNCH.replace('SlowSolver', 'StubbornSolver')
+
+
+class SlowSolver:
+    """The rigid test solver after ``SECONDS`` of 'iterations' (0.05 s each), each reported to
+    ``progress(iteration, report)`` as GrassmannNRSfM does (so a node can cancel it)."""
+
+    SECONDS = 30.0
+
+    def fit(self, W, init=None, progress=None):
+        from test_pipeline import RigidALS
+
+        report = SimpleNamespace(iterations=0)
+        for it in range(int(self.SECONDS / 0.05)):
+            time.sleep(0.05)
+            report.iterations = it + 1
+            if progress is not None:
+                progress(it + 1, report)
+        return RigidALS().fit(W, init)
+
+
+class StubbornSolver(SlowSolver):
+    """A slow solver without a progress callback: it cannot be cancelled."""
+
+    def fit(self, W, init=None):
+        return super().fit(W, init, None)
+
+
+def frames(F, P=60, seed=0, id_offset=0, first=0):
+    """``F`` tracks clouds (rclpy) of a rigid-ish synthetic scene, stamps 30 Hz from ``first``."""
+    from std_msgs.msg import Header
+    from test_pipeline import make_sequence
+
+    from grass_nrsfm_ros import cloud
+
+    W, _, ids = make_sequence(F=F, P=P, seed=seed)
+    out = []
+    for f in range(F):
+        ns = T0 + (first + f) * PERIOD_NS
+        header = Header(frame_id='camera')
+        header.stamp.sec, header.stamp.nanosec = divmod(ns, 10 ** 9)
+        out.append(cloud.encode_tracks(ids + id_offset, as_frames(W, 2)[f].T, header))
+    return out
+
+
+def publish(feeder, messages, period=1 / 30):
+    start = time.monotonic()
+    for i, msg in enumerate(messages):
+        time.sleep(max(0.0, start + i * period - time.monotonic()))
+        feeder.pub.publish(msg)
+
+
+def figure(name, **values):
+    FIGURES[name] = values
+    print(f'{name}: {values}')
+
+
+@pytest.fixture(scope='module', autouse=True)
+def write_figures():
+    yield
+    if FIGURES:
+        RESULTS.parent.mkdir(parents=True, exist_ok=True)
+        old = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
+        RESULTS.write_text(json.dumps({**old, **FIGURES}, indent=1, sort_keys=True) + '\n')
+
+
+def ros():
+    """rosutil, or skip without rclpy."""
+    pytest.importorskip('rclpy')
+    import rosutil
+    return rosutil
+
+
+# -- stopping ------------------------------------------------------------------------------------
+@pytest.mark.ros
+@pytest.mark.parametrize('launch', [SLOW_LAUNCH, STUBBORN_LAUNCH],
+                         ids=['cancellable', 'stubborn'])
+def test_sigterm_during_a_solve_exits_within_2s_and_finalises_the_recording(
+        ros_env, tmp_path, launch):
+    rosutil = ros()
+    log = tmp_path / 'node.log'
+    args = ['-p', 'window_size:=5', '-p', 'window_stride:=5', '-p', 'min_tracks:=10',
+            '-p', f'record_path:={tmp_path}/rec']
+    with rosutil.node_with_feeder(ros_env, log, args, launch=launch,
+                                  subscribers=2) as (proc, feeder):
+        publish(feeder, frames(7))
+        time.sleep(1.0)                     # the first window (5 frames) is being solved
+        assert proc.poll() is None
+        start = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        code = proc.wait(20)
+        seconds = time.monotonic() - start
+    text = log.read_text()
+    figure(f'sigterm_during_solve_{"stubborn" if "Stubborn" in launch else "cancellable"}',
+           exit_seconds=round(seconds, 3), exit_code=code)
+    assert seconds < 2.0, text
+    assert code == 0, text
+    assert 'Traceback' not in text
+    assert (tmp_path / 'rec' / 'metadata.yaml').exists(), text     # finalised, not recovered
+    counts = {t: n for t, (_, n) in bag.topics(tmp_path / 'rec').items()}
+    assert sum(n for t, n in counts.items() if t.endswith('/tracks')) == 7
+    assert sum(n for t, n in counts.items() if t.endswith('/points')) == 0
+
+
+@pytest.mark.ros
+def test_kill_9_during_recording_leaves_a_recoverable_bag(ros_env, tmp_path):
+    rosutil = ros()
+    log = tmp_path / 'node.log'
+    args = ['-p', f'record_path:={tmp_path}/rec']
+    with rosutil.node_with_feeder(ros_env, log, args, subscribers=2) as (proc, feeder):
+        messages = frames(90)
+        publish(feeder, messages)
+        counts = feeder.accounted(len(messages))
+        assert counts is not None, log.read_text()
+        time.sleep(1.5)                    # past the recorder's flush period (1 s)
+        published = len(feeder.points)
+        assert published == counts['frames published'] > 0
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(10)
+    assert not (tmp_path / 'rec' / 'metadata.yaml').exists()
+    out = subprocess.run([sys.executable, '-m', 'grass_nrsfm_ros.cli', 'recover',
+                          str(tmp_path / 'rec')], capture_output=True, text=True, cwd=REPO,
+                         env=ros_env, timeout=60)
+    assert out.returncode == 0, out.stderr
+    counts = {t: n for t, (_, n) in bag.topics(tmp_path / 'rec_recovered').items()}
+    tracks = sum(n for t, n in counts.items() if t.endswith('/tracks'))
+    points = sum(n for t, n in counts.items() if t.endswith('/points'))
+    figure('kill_9_recording', sent=len(messages), published=published,
+           recovered_tracks=tracks, recovered_points=points)
+    assert tracks == len(messages)        # everything was flushed before the kill
+    assert points == published
+
+
+# -- the recording target fails ------------------------------------------------------------------
+def _limit_file_size():
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)              # writes past it -> EFBIG
+    resource.setrlimit(resource.RLIMIT_FSIZE, (256 * 1024, 256 * 1024))
+
+
+@pytest.mark.ros
+def test_full_recording_target_gives_one_error_and_reconstruction_goes_on(ros_env, tmp_path):
+    rosutil = ros()
+    log = tmp_path / 'node.log'
+    args = ['-p', f'record_path:={tmp_path}/rec']
+    with rosutil.node_with_feeder(ros_env, log, args, subscribers=2,
+                                  preexec_fn=_limit_file_size) as (proc, feeder):
+        messages = frames(150, P=200)     # ~2.4 kB per tracks cloud, 3.2 kB per points cloud
+        publish(feeder, messages)
+        counts = feeder.accounted(len(messages))
+        assert counts is not None, log.read_text()
+        status = feeder.diagnostics[-1].status[0]
+        assert proc.poll() is None
+    text = log.read_text()
+    errors = [line for line in text.splitlines() if 'recording to' in line]
+    error_at = next(i for i, line in enumerate(text.splitlines()) if 'recording to' in line)
+    figure('full_recording_target', sent=len(messages), **counts, error_lines=len(errors))
+    assert len(errors) == 1 and 'File too large' in errors[0], text
+    # 256 kB hold ~45 frames of tracks and points: most frames came after the error
+    assert counts['frames published'] >= 100, (counts, text.splitlines()[error_at:])
+    assert counts['messages received'] == (counts['dropped messages'] + counts['frames published']
+                                           + counts['frames lost'] + counts['frames pending'])
+    assert 'recording failed' in status.message
+    assert 'Traceback' not in text
+
+
+# -- peers come and go ---------------------------------------------------------------------------
+@pytest.mark.ros
+def test_subscriber_that_disappears_causes_no_error_and_publishing_goes_on(ros_env, tmp_path):
+    rosutil = ros()
+    from sensor_msgs.msg import PointCloud2
+
+    log = tmp_path / 'node.log'
+    args = ['-p', 'window_size:=10', '-p', 'window_stride:=5']
+    with rosutil.node_with_feeder(ros_env, log, args) as (proc, feeder):
+        other = []
+        sub = feeder.node.create_subscription(PointCloud2, 'points', other.append, 100)
+        messages = frames(120)
+        publish(feeder, messages[:40])
+        assert feeder.wait_for(lambda: len(other) >= 30, 20)
+        feeder.node.destroy_subscription(feeder.points_sub)      # both subscribers leave
+        feeder.node.destroy_subscription(sub)
+        seen = len(other)
+        publish(feeder, messages[40:80])
+        time.sleep(1.0)
+        sub = feeder.node.create_subscription(PointCloud2, 'points', other.append, 100)
+        assert feeder.wait_for(lambda: feeder.node.count_subscribers(
+            feeder.node.get_namespace() + '/points') >= 1, 10)
+        time.sleep(0.5)
+        publish(feeder, messages[80:])
+        assert feeder.wait_for(lambda: int(feeder.diagnostic_values().get(
+            'frames published', 0)) >= 115, 20), log.read_text()
+        assert proc.poll() is None
+        values = feeder.diagnostic_values()
+    text = log.read_text()
+    warnings = [line for line in text.splitlines() if 'WARN' in line or 'ERROR' in line]
+    figure('subscriber_disappears', sent=len(messages), published=int(values['frames published']),
+           received_after_return=len(other) - seen, warning_lines=len(warnings))
+    assert warnings == [], text
+    assert len(other) - seen >= 30            # published again once someone listens
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize('stamps', ['later', 'restarted'])
+def test_publisher_restarting_with_new_ids_starts_a_new_sequence(ros_env, tmp_path, stamps):
+    """A tracker restarts: new publisher, new track ids; its stamps go on ('later') or start
+    again from an earlier time ('restarted', e.g. a replayed log)."""
+    rosutil = ros()
+    from sensor_msgs.msg import PointCloud2
+
+    log = tmp_path / 'node.log'
+    args = ['-p', 'window_size:=10', '-p', 'window_stride:=5']
+    with rosutil.node_with_feeder(ros_env, log, args) as (proc, feeder):
+        publish(feeder, frames(40))
+        assert feeder.wait_for(lambda: len(feeder.points) >= 40, 20), log.read_text()
+        feeder.node.destroy_publisher(feeder.pub)
+        time.sleep(0.5)
+        feeder.pub = feeder.node.create_publisher(PointCloud2, 'tracks', 10)
+        assert feeder.wait_for(feeder.connected, 20)
+        first = 60 if stamps == 'later' else -1000
+        publish(feeder, frames(40, seed=1, id_offset=1_000_000, first=first))
+        assert feeder.wait_for(lambda: len(feeder.points) >= 80, 20), log.read_text()
+        assert feeder.wait_for(
+            lambda: feeder.diagnostic_values().get('sequences') == '2', 5), log.read_text()
+    from grass_nrsfm_ros import cloud
+    new = [m for m in feeder.points if cloud.decode_points(m)[0].min() >= 1_000_000]
+    figure(f'publisher_restart_{stamps}', published_new_sequence=len(new))
+    assert len(new) == 40
+    assert 'all track ids changed' in log.read_text()
+
+
+# -- bags from outside ---------------------------------------------------------------------------
+@pytest.fixture(scope='module')
+def broken_bags(tmp_path_factory):
+    """A good bag and broken ones: ``{name: path}``."""
+    root = tmp_path_factory.mktemp('bags')
+    W = np.random.default_rng(0).uniform(0, 640, (2 * 40, 30))
+    bag.tracks_bag_from_arrays(W, T0 + np.arange(40) * PERIOD_NS, root / 'good')
+    data = (root / 'good' / 'good_0.mcap').read_bytes()
+    (root / 'cut.mcap').write_bytes(data[:len(data) // 2])
+    (root / 'junk.mcap').write_bytes(b'not a bag at all' * 10)
+    (root / 'junk.bag').write_bytes(b'#ROSBAG V2.0\n' + b'\xff' * 50)
+    truncated = root / 'truncated'
+    truncated.mkdir()
+    (truncated / 'metadata.yaml').write_text(
+        (root / 'good' / 'metadata.yaml').read_text().replace('good_0', 'truncated_0'))
+    (truncated / 'truncated_0.mcap').write_bytes(data[:len(data) * 2 // 3])
+    nometa = root / 'nometa'
+    nometa.mkdir()
+    (nometa / 'nometa_0.mcap').write_bytes(data)
+    return {'good': root / 'good', 'cut': root / 'cut.mcap', 'junk': root / 'junk.mcap',
+            'junk_ros1': root / 'junk.bag', 'truncated': truncated, 'nometa': nometa}
+
+
+CASES = {'cut': 'cannot read bag', 'junk': 'cannot read bag', 'junk_ros1': 'cannot read bag',
+         'truncated': 'recover', 'nometa': 'no metadata.yaml', 'missing_topic': "no topic '/nope'"}
+
+
+@pytest.mark.parametrize('command', ['replay', 'reconstruct'])
+@pytest.mark.parametrize('case', CASES)
+def test_broken_bags_give_one_clear_line_and_exit_2(broken_bags, tmp_path, command, case,
+                                                    monkeypatch):
+    if command == 'replay':
+        pytest.importorskip('rclpy')
+    path = broken_bags['good' if case == 'missing_topic' else case]
+    extra = ['--topic', '/nope'] if case == 'missing_topic' else []
+    extra += ['-o', str(tmp_path / 'out'), '--quiet'] if command == 'reconstruct' else \
+        ['--rate', '100']
+    env = {**os.environ, 'PYTHONPATH': str(REPO), 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'OFF',
+           'ROS_LOG_DIR': str(tmp_path / 'log')}
+    out = subprocess.run([sys.executable, '-m', 'grass_nrsfm_ros.cli', command, str(path),
+                          *extra], capture_output=True, text=True, cwd=REPO, env=env,
+                         timeout=60)
+    lines = out.stderr.strip().splitlines()
+    assert out.returncode == 2, (out.stdout, out.stderr)
+    assert len(lines) == 1, out.stderr
+    assert lines[0].startswith(f'grass-nrsfm {command}: error: ') and CASES[case] in lines[0]
+    assert 'Traceback' not in out.stdout + out.stderr
+    assert not (tmp_path / 'out').exists()          # no half-written output
+    FIGURES.setdefault('broken_bags_rejected', []).append(f'{command} {case}')
+
+
+# -- load ----------------------------------------------------------------------------------------
+def _short_load(tmp_path, record):
+    pytest.importorskip('rclpy')
+    sys.path.insert(0, str(REPO))
+    from bench import load
+    return load.run(seconds=12, points=2000, rate=30, solver='rigid', record=record,
+                    tmp=tmp_path, depth=100, log=lambda *a: None)
+
+
+def _check_load(figures):
+    assert 'error' not in figures, figures
+    assert figures['frames unaccounted'] == 0, figures
+    assert figures['messages received'] == figures['sent'], figures
+    # memory flat after warm-up: measured growth 5-14 MB over 12 s (the points and the
+    # allocator settling); a leak of one 2k-point cloud per frame would be > 30 MB
+    assert figures['rss_mb']['growth_after_warmup'] < 25, figures['rss_mb']
+
+
+@pytest.mark.ros
+def test_short_load_every_frame_accounted_memory_flat(ros_env, tmp_path):
+    figures = _short_load(tmp_path, record=False)
+    figure('load_short_no_recording', **{k: v for k, v in figures.items() if k != 'rss_mb'},
+           rss_growth_mb=figures.get('rss_mb', {}).get('growth_after_warmup'))
+    _check_load(figures)
+
+
+@pytest.mark.ros
+@pytest.mark.xfail(reason='with recording on, the node loses input messages under sustained '
+                          'load (DDS history overflow while the executor stalls; measured '
+                          '356/450 received at 2k points, 706/1800 at 30k): not fixed yet',
+                   strict=False)
+def test_short_load_with_recording_loses_nothing(ros_env, tmp_path):
+    figures = _short_load(tmp_path, record=True)
+    figure('load_short_recording', **{k: v for k, v in figures.items() if k != 'rss_mb'},
+           rss_growth_mb=figures.get('rss_mb', {}).get('growth_after_warmup'))
+    _check_load(figures)
+    assert figures['recording_complete'], figures
