@@ -86,7 +86,6 @@ def run(seconds=600.0, points=30_000, rate=30.0, solver='rigid', window=30, stri
     n_total = int(round(seconds * rate))
     rss, late = [], 0
     with rosutil.node_with_feeder(env, tmp / 'node.log', args, launch=launch,
-                                  subscribers=2 if record else 1,
                                   keep_points=False) as (proc, feeder):
         feeder.use_depth(depth)
         start = time.monotonic()

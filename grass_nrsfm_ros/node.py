@@ -32,6 +32,7 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
+from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header
 
@@ -133,16 +134,17 @@ class ReconstructionNode(Node):
         input_qos = QoSProfile(depth=INPUT_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
         overrides = QoSOverridingOptions.with_default_policies()
         self._input_group = MutuallyExclusiveCallbackGroup()
+        # one raw subscription: the CDR bytes are recorded as received, then decoded once
         self.tracks_sub = self.create_subscription(
-            PointCloud2, 'tracks', self._on_tracks, input_qos, callback_group=self._input_group,
-            qos_overriding_options=overrides)
+            PointCloud2, 'tracks', self._on_tracks_raw, input_qos, raw=True,
+            callback_group=self._input_group, qos_overriding_options=overrides)
         self.points_pub = self.create_publisher(PointCloud2, 'points', qos,
                                                 qos_overriding_options=overrides)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.create_timer(1.0, self._publish_diagnostics,
                           callback_group=MutuallyExclusiveCallbackGroup())
         self.add_post_set_parameters_callback(self._on_parameters_set)
-        self.recorder = self._open_recorder(config['record_path'], input_qos)
+        self.recorder = self._open_recorder(config['record_path'])
         self.get_logger().info(
             f'reconstructing {self.tracks_sub.topic_name} -> {self.points_pub.topic_name}: '
             f'window {self.pipeline.window_size}, stride {self.pipeline.window_stride}')
@@ -170,7 +172,7 @@ class ReconstructionNode(Node):
         threads = threads or max(1, (os.cpu_count() or 2) - 1)
         self._blas_limits = threadpool_limits(limits=threads)
 
-    def _open_recorder(self, path, qos):
+    def _open_recorder(self, path):
         """A :class:`grass_nrsfm_ros.bag.Recorder` of the input tracks (raw CDR, receive time)
         and output points (publish time), or None when off. Its writer thread keeps the disk
         off the solve path; a failure (unwritable path, full disk) is logged once and
@@ -182,13 +184,23 @@ class ReconstructionNode(Node):
         recorder = Recorder(path, on_error=self.get_logger().error)
         for topic in (self.tracks_sub.topic_name, self.points_pub.topic_name):
             recorder.add_topic(topic, POINTCLOUD2)
-        self.create_subscription(PointCloud2, 'tracks', self._record_tracks, qos, raw=True,
-                                 callback_group=MutuallyExclusiveCallbackGroup())
         if recorder.error is None:
             self.get_logger().info(f'recording tracks and points to {path}')
         return recorder
 
     # -- input ----------------------------------------------------------------------------------
+    def _on_tracks_raw(self, raw):
+        """Record one serialized tracks message (receive time), then decode and handle it."""
+        if self.recorder is not None:
+            self.recorder.write(self.tracks_sub.topic_name, raw,
+                                self.get_clock().now().nanoseconds)
+        try:
+            msg = deserialize_message(raw, PointCloud2)
+        except Exception as exc:                      # malformed CDR: drop, keep running
+            self._counts['messages'] += 1
+            return self._drop(None, f'undecodable tracks message ({type(exc).__name__}: {exc})')
+        self._on_tracks(msg)
+
     def _on_tracks(self, msg):
         """Decode one frame, buffer it, hand any closed window to the worker."""
         self._counts['messages'] += 1
@@ -215,10 +227,8 @@ class ReconstructionNode(Node):
 
     def _drop(self, stamp, reason):
         self._counts['dropped_messages'] += 1
-        self._log.warning(f'dropped tracks message at {stamp} ns: {reason}')
-
-    def _record_tracks(self, raw):
-        self.recorder.write(self.tracks_sub.topic_name, raw, self.get_clock().now().nanoseconds)
+        where = '' if stamp is None else f' at {stamp} ns'
+        self._log.warning(f'dropped tracks message{where}: {reason}')
 
     # -- solving (worker thread) ----------------------------------------------------------------
     def _submit(self, window):

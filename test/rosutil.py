@@ -28,8 +28,7 @@ RIGID_LAUNCH = ('import sys; from test_pipeline import RigidALS, RigidWarmStart;
 class Feeder:
     """This process's side: publishes ``tracks``, collects ``points`` and ``/diagnostics``."""
 
-    def __init__(self, namespace, subscribers=1, keep_points=True):
-        self.subscribers = subscribers              # the node's tracks subscriptions
+    def __init__(self, namespace, keep_points=True):
         self.points_received = 0                    # counted even when not kept (load runs)
         self.context = rclpy.Context()
         rclpy.init(context=self.context)
@@ -63,7 +62,7 @@ class Feeder:
         return condition()
 
     def connected(self):
-        return (self.pub.get_subscription_count() >= self.subscribers
+        return (self.pub.get_subscription_count() >= 1
                 and self.node.count_publishers(self.node.get_namespace() + '/points') > 0)
 
     def use_depth(self, depth):
@@ -122,7 +121,7 @@ def stop(proc, sig=signal.SIGINT, timeout=15):
 
 
 @contextmanager
-def node_with_feeder(env, log, args=(), *, launch=RIGID_LAUNCH, subscribers=1,
+def node_with_feeder(env, log, args=(), *, launch=RIGID_LAUNCH,
                      preexec_fn=None, connect_timeout=30, keep_points=True):
     """Start the node (``launch``: Python code run with ``-c`` from test/, extra ROS ``args``)
     in a fresh namespace, its output in ``log``; yield ``(process, feeder)`` once they are
@@ -132,7 +131,7 @@ def node_with_feeder(env, log, args=(), *, launch=RIGID_LAUNCH, subscribers=1,
         proc = subprocess.Popen(
             [sys.executable, '-c', launch, '--ros-args', '-r', f'__ns:={namespace}', *args],
             cwd=TEST_DIR, env=env, stdout=out, stderr=subprocess.STDOUT, preexec_fn=preexec_fn)
-    feeder = Feeder(namespace, subscribers=subscribers, keep_points=keep_points)
+    feeder = Feeder(namespace, keep_points=keep_points)
     try:
         assert feeder.wait_for(feeder.connected, connect_timeout), Path(log).read_text()
         yield proc, feeder

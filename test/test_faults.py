@@ -109,8 +109,7 @@ def test_sigterm_during_a_solve_exits_within_2s_and_finalises_the_recording(
     log = tmp_path / 'node.log'
     args = ['-p', 'window_size:=5', '-p', 'window_stride:=5', '-p', 'min_tracks:=10',
             '-p', f'record_path:={tmp_path}/rec']
-    with rosutil.node_with_feeder(ros_env, log, args, launch=launch,
-                                  subscribers=2) as (proc, feeder):
+    with rosutil.node_with_feeder(ros_env, log, args, launch=launch) as (proc, feeder):
         publish(feeder, frames(7))
         time.sleep(1.0)                     # the first window (5 frames) is being solved
         assert proc.poll() is None
@@ -135,7 +134,7 @@ def test_kill_9_during_recording_leaves_a_recoverable_bag(ros_env, tmp_path):
     rosutil = ros()
     log = tmp_path / 'node.log'
     args = ['-p', f'record_path:={tmp_path}/rec']
-    with rosutil.node_with_feeder(ros_env, log, args, subscribers=2) as (proc, feeder):
+    with rosutil.node_with_feeder(ros_env, log, args) as (proc, feeder):
         messages = frames(90)
         publish(feeder, messages)
         counts = feeder.accounted(len(messages))
@@ -170,7 +169,7 @@ def test_full_recording_target_gives_one_error_and_reconstruction_goes_on(ros_en
     rosutil = ros()
     log = tmp_path / 'node.log'
     args = ['-p', f'record_path:={tmp_path}/rec']
-    with rosutil.node_with_feeder(ros_env, log, args, subscribers=2,
+    with rosutil.node_with_feeder(ros_env, log, args,
                                   preexec_fn=_limit_file_size) as (proc, feeder):
         messages = frames(150, P=200)     # ~2.4 kB per tracks cloud, 3.2 kB per points cloud
         publish(feeder, messages)

@@ -34,9 +34,7 @@ def node_process(ros_env, tmp_path, request):
     log = tmp_path / 'node.log'
     args = getattr(request, 'param', ())
     extra = [a.format(tmp=tmp_path) for a in args]
-    recording = any(a.startswith('record_path:={tmp}') for a in args)
-    with node_with_feeder(ros_env, log, ['-p', 'frame_id:=cam_optical', *extra],
-                          subscribers=2 if recording else 1) as (proc, feeder):
+    with node_with_feeder(ros_env, log, ['-p', 'frame_id:=cam_optical', *extra]) as (proc, feeder):
         yield proc, log, feeder
 
 
