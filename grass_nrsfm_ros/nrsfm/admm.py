@@ -87,6 +87,49 @@ the paper's noise level: the rank-N zeta projections denoise. Choices behind tha
 Sparse mocap (rotations from estimate_rotations, K_rot='auto'; e3D none / temporal = both):
 drink 0.0133 / 0.0078, pickup 0.0260 / 0.0196, yoga 0.0208 / 0.0178, dance 0.1241 / 0.1241,
 Torresani face 0.0168 / 0.0159, shark 0.1175 / 0.1177 (spatial auto-off there, see above).
+Accuracy audit with the defaults (branch accuracy; e3D = metrics.e3d, Akhter = e3d_akhter;
+test/test_accuracy.py holds these as regression thresholds). ours / rigid / BMM (same Dai R):
+  drink  0.0078 / 0.1232 / 0.0123 (Akhter 0.0137; BMM published 0.0266)
+  pickup 0.0196 / 0.3043 / 0.0255 (Akhter 0.0393; published 0.1731)
+  yoga   0.0178 / 0.2795 / 0.0210 (Akhter 0.0305; published 0.1150)
+  dance  0.1241 / 0.2676 / 0.1242 (Akhter 0.1857; published 0.1864: borderline)
+  face   0.0159 / 0.0312 / 0.0165 (Akhter 0.0272; published 0.0303)
+  shark  0.1177 / 0.0933 / 0.1112 (Akhter 0.2462; published 0.2311): FAILS both
+  kinect_paper / tshirt subsets (e3D with per-frame scale): 0.100 / 0.266, 0.134 / 0.386
+  synthetic 60 x 500 orbit (shaky): bending 0.171 / 0.292 (0.152 / 0.245), inflating 0.013 /
+  0.073, twisting 0.145 / 0.435 (0.102 / 0.225), articulated 0.084 / 0.101 (0.081 / 0.102),
+  waving 0.254 / 0.171 (0.246 / 0.172): FAILS.
+  dense faces 99 x 2000: seed 0 orbit 0.046 / 0.121 (0.38x), seed 1 orbit 0.055 / 0.177
+  (0.31x), seed 2 shaky 0.053 / 0.057 (0.94x; GT rotations give 0.052: an identity with
+  little deformation, the shape step's limit), seed 3 wobble 0.295 / 0.309 (few degrees of
+  head motion: depth barely observable).
+Noise r = 0, .01, .02, .03, .04, .05 (sigma = r max|W|): face 60 x 1500 0.048, 0.061, 0.067,
+  0.069, 0.069, 0.073 (rigid 0.121-0.124); inflating 60 x 500 0.013, 0.014, 0.019, 0.023,
+  0.028, 0.033 (rigid 0.073-0.078); bending 0.171, 0.143, 0.173, 0.176, 0.176, 0.172 (rigid
+  0.29-0.31). K_rot 'auto' drops from 5-6 to 2-3 as noise grows.
+Tried and NOT adopted (no general gain):
+* gamma 3e-4 / 1e-3 / 3e-3 / 1e-2 / 3e-2: shark 0.187 / 0.118 / 0.112 / 0.114 / 0.128, pickup
+  0.020 / 0.020 / 0.023 / 0.039 / 0.074, mocap face 0.058 / 0.016 / 0.018 / 0.027 / 0.058,
+  waving 0.259 / 0.254 / 0.253 / 0.251 / 0.248, dense face (GT R) 0.055 / 0.052 / 0.054:
+  1e-3 stays best overall; gamma does not fix shark or waving.
+* Rotation refinement by alternation (S# of the result projected to rank 3 K_rot, per-frame
+  R step min ||W_f - P R_f X_f|| by depth fill-in + 3x3 Procrustes, re-solve with WarmStart(R),
+  4 rounds): shark 0.118 -> 0.115, waving 0.254 -> 0.252, bending 0.171 -> 0.169, pickup
+  0.020 -> 0.020, face 0.016 -> 0.016. Negligible.
+* Shape priors in the BMM step (same Dai R): nuclear norm not penalising the top singular
+  value: shark 0.111 -> 0.082 but waving 0.252 -> 0.445, bending 0.165 -> 0.186; reweighted
+  nuclear norm (weights 0.03 / (s/s1 + 0.03)): pickup 0.026 -> 0.018, yoga 0.021 -> 0.015,
+  shark -> 0.092 but dance 0.124 -> 0.150 (breaks dance vs published BMM).
+* Temporal smoothness instead of the nuclear norm ((R^T R + l D^T D)^+ R^T W): shark 0.058,
+  pickup 0.019, but face 0.022-0.028 and waving 0.33. A combined nuclear + smoothness prior is
+  the most promising open direction for shark.
+* Warm start from the rigid shape: shark 0.051 (warm_beta0 = 1) but pickup 0.26, face 0.23.
+Diagnosis. Shark: W has rank 5; K_rot = 2 rotations are exact (residual 8.6e-9; the GT
+  shapes rotated by them give a world S# of rank 3, singular values 1, 0.14, 0.08), so the
+  error is the shape step: minimum-nuclear-norm depths are not the rank-3 GT depths (ALS at
+  rank 2 from the BMM shapes reaches 0.081). Waving: with ground-truth rotations ours gives
+  0.21 (rigid 0.171), so the nuclear-norm shapes are wrong even with exact R; the estimated
+  rotations add to it (Dai K=3 22 degrees mean error vs rigid 12 degrees).
 Speed: 99 x 28,880 face, both branches: 115 iterations, 149 s CPU / 141 s wall with 2 BLAS
 threads on a 2-core machine shared with other jobs (load 3-6); the S# Gram (F x F) and its
 product dominate, then the spatial power iterations. The 60 s target was not verified on an

@@ -1,0 +1,163 @@
+"""End-to-end accuracy of GrassmannNRSfM with its DEFAULT parameters (no per-sequence tuning).
+
+Every threshold is the value measured on branch ``accuracy`` (2-core machine, OpenBLAS,
+random_state 0) plus a modest margin, written next to it, so a regression fails. Besides the
+absolute threshold each case must beat rigid factorisation (Tomasi-Kanade) on the same tracks.
+Known failures of the requirement "beat rigid on every deforming sequence" are kept as strict
+xfails: they fail loudly (XPASS) once fixed, so the marker must then be removed.
+
+Runtime: about a minute of CPU (mocap ~14 s, 10 synthetic cases ~10 s, faces ~10 s). The
+1,102-frame drink sequence costs ~66 s of CPU and runs only with GRASS_NRSFM_SLOW_TESTS=1.
+"""
+from functools import lru_cache
+import os
+
+import pytest
+from conftest import data_root, load_dataset
+
+from grass_nrsfm_ros.nrsfm import GrassmannNRSfM
+from grass_nrsfm_ros.nrsfm.metrics import e3d, e3d_akhter
+from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
+from grass_nrsfm_ros.nrsfm.synthetic import make_sequence
+
+SLOW = os.environ.get('GRASS_NRSFM_SLOW_TESTS') == '1'
+
+
+def solve(W, S, *, scale=False):
+    """``(ours e3D, rigid e3D, ours e3D_akhter, ours S)`` with default parameters."""
+    S_ours = GrassmannNRSfM().fit(W).S
+    S_rigid = rigid_factorisation(W)[1]
+    return (e3d(S_ours, S, scale=scale), e3d(S_rigid, S, scale=scale), e3d_akhter(S_ours, S),
+            S_ours)
+
+
+# ------------------------------------------------------------------------------ mocap
+# (relpath, e3D threshold (measured), Akhter threshold (measured), Dai et al.'s published BMM
+# value in Akhter's metric, whether ours beats rigid today)
+MOCAP = {
+    'drink': ('akhter_mocap/drink.npz', 0.0095, 0.016, 0.0266),    # 0.0078, ak 0.0137
+    'pickup': ('akhter_mocap/pickup.npz', 0.023, 0.045, 0.1731),   # 0.0196, ak 0.0393
+    'yoga': ('akhter_mocap/yoga.npz', 0.021, 0.035, 0.1150),       # 0.0178, ak 0.0305
+    'dance': ('akhter_mocap/dance.npz', 0.135, 0.1864, 0.1864),    # 0.1241, ak 0.1857
+    'face': ('torresani_mocap/face.npz', 0.019, 0.0303, 0.0303),   # 0.0159, ak 0.0272
+    'shark': ('torresani_mocap/shark.npz', 0.13, 0.27, 0.2311),    # 0.1177, ak 0.2462
+}
+KNOWN_WORSE_THAN_RIGID = {'shark'}      # ours 0.1177 vs rigid 0.0933 (see admm.py docstring)
+KNOWN_WORSE_THAN_BMM_PUBLISHED = {'shark'}   # Akhter 0.2462 vs BMM's published 0.2311
+
+
+@lru_cache(maxsize=None)
+def mocap(name):
+    W, S = load_dataset(MOCAP[name][0])
+    return solve(W, S)[:3]
+
+
+def mocap_params():
+    out = []
+    for name in MOCAP:
+        marks = [pytest.mark.skipif(name == 'drink' and not SLOW,
+                                    reason='drink: ~66 s CPU; set GRASS_NRSFM_SLOW_TESTS=1')]
+        out.append(pytest.param(name, marks=marks, id=name))
+    return out
+
+
+@pytest.mark.parametrize('name', mocap_params())
+def test_mocap_below_measured_thresholds(name):
+    ours, _, akhter = mocap(name)
+    _, e3d_max, akhter_max, _ = MOCAP[name]
+    assert ours < e3d_max
+    assert akhter < akhter_max
+
+
+@pytest.mark.parametrize('name', mocap_params())
+def test_mocap_beats_rigid(name):
+    ours, rigid, _ = mocap(name)
+    if name in KNOWN_WORSE_THAN_RIGID:
+        assert ours > rigid, f'{name} now beats rigid: remove it from KNOWN_WORSE_THAN_RIGID'
+        pytest.xfail(f'{name}: ours {ours:.4f} >= rigid {rigid:.4f} (known, open)')
+    assert ours < rigid
+
+
+@pytest.mark.parametrize('name', mocap_params())
+def test_mocap_beats_published_bmm(name):
+    _, _, akhter = mocap(name)
+    published = MOCAP[name][3]
+    if name in KNOWN_WORSE_THAN_BMM_PUBLISHED:
+        assert akhter > published, f'{name} now beats BMM: update KNOWN_WORSE_THAN_BMM_PUBLISHED'
+        pytest.xfail(f'{name}: Akhter {akhter:.4f} >= BMM published {published} (known, open)')
+    assert akhter < published
+
+
+# ------------------------------------------------------------------------------ perspective
+# normalised image coordinates through an orthographic model: e3D with a per-frame scale
+# (the reconstruction is in normalised units, the ground truth in mm)
+PERSPECTIVE = {
+    # measured 0.1003 (rigid 0.2663)
+    'kinect_paper': ('perspective_subsets/kinect_paper.npz', 0.115),
+    # measured 0.1344 (rigid 0.3862)
+    'white_cartoon_tshirt': ('perspective_subsets/white_cartoon_tshirt.npz', 0.155),
+}
+
+
+@pytest.mark.parametrize('name', list(PERSPECTIVE))
+def test_perspective_subsets_beat_rigid(name):
+    relpath, e3d_max = PERSPECTIVE[name]
+    W, S = load_dataset(relpath)
+    ours, rigid, _, _ = solve(W, S, scale=True)
+    assert ours < e3d_max
+    assert ours < rigid
+
+
+# ------------------------------------------------------------------------------ synthetic
+# kind -> measured e3D (orbit, shaky) at 60 frames x 500 points, seed 0; threshold +15%
+SYNTHETIC = {
+    'bending': (0.1711, 0.1520),       # rigid 0.2921, 0.2451
+    'waving': (0.2540, 0.2456),        # rigid 0.1711, 0.1724: KNOWN worse than rigid
+    'inflating': (0.0132, 0.0138),     # rigid 0.0734, 0.0734
+    'twisting': (0.1451, 0.1020),      # rigid 0.4348, 0.2250
+    'articulated': (0.0835, 0.0814),   # rigid 0.1013, 0.1016
+}
+SYNTHETIC_WORSE_THAN_RIGID = {'waving'}
+
+
+@pytest.mark.parametrize('camera', ['orbit', 'shaky'])
+@pytest.mark.parametrize('kind', list(SYNTHETIC))
+def test_synthetic_kinds(kind, camera):
+    seq = make_sequence(kind, 60, 500, camera=camera, seed=0)
+    ours, rigid, _, _ = solve(seq.W, seq.S)
+    measured = SYNTHETIC[kind][0 if camera == 'orbit' else 1]
+    assert ours < 1.15 * measured
+    if kind in SYNTHETIC_WORSE_THAN_RIGID:
+        assert ours > rigid, f'{kind} now beats rigid: remove it from SYNTHETIC_WORSE_THAN_RIGID'
+        pytest.xfail(f'{kind}/{camera}: ours {ours:.4f} >= rigid {rigid:.4f} (known, open)')
+    assert ours < rigid
+
+
+# ------------------------------------------------------------------------------ dense faces
+
+def face_sequence(**kwargs):
+    root = data_root()
+    if root is None or not (root / 'sfm_face' / 'sfm_face.npz').is_file():
+        pytest.skip('Surrey face model not found (set GRASS_NRSFM_DATA)')
+    from grass_nrsfm_ros.nrsfm.faces import make_face_sequence
+    return make_face_sequence(model=root / 'sfm_face' / 'sfm_face.npz', **kwargs)
+
+
+def test_dense_face_half_of_rigid():
+    """99 x 2000 face, seed 0, orbiting head: measured 0.0462 vs rigid 0.1211 (0.38x)."""
+    seq = face_sequence(n_frames=99, n_points=2000, seed=0, head_motion='orbit')
+    ours, rigid, _, _ = solve(seq.W, seq.S)
+    assert ours < 0.053
+    assert ours < 0.5 * rigid
+
+
+def test_dense_face_noise_grows_gently():
+    """60 x 1500 face, r = 0.05 (sigma = r max|W|): measured 0.0729 (clean 0.0478, rigid
+    0.1237); the error stays below 0.65x rigid and below twice the clean error."""
+    noisy = face_sequence(n_frames=60, n_points=1500, seed=0, noise=0.05)
+    ours, rigid, _, _ = solve(noisy.W, noisy.S)
+    assert ours < 0.084
+    assert ours < 0.65 * rigid
+    clean = face_sequence(n_frames=60, n_points=1500, seed=0)
+    ours_clean = solve(clean.W, clean.S)[0]
+    assert ours < 2.0 * ours_clean
