@@ -1,10 +1,17 @@
-"""Streaming: frames per second sustained and window latency through pipeline.SlidingWindow (no
-ROS) for 1k, 10k and 30k tracks (quick: 1k and 10k). The solver is ours where it exists, else
-the rigid factorisation (recorded in the JSON), so the pipeline's own overhead is measured too.
+"""Streaming through pipeline.SlidingWindow (no ROS), window 30 / stride 10 (the defaults):
+
+* accuracy: e3D of the streamed clouds (every frame as published, once) against the
+  whole-sequence solve and against rigid factorisation per window (published the same way), on
+  dense faces (60 and 99 frames; skipped without the face model), the synthetic kinds and the
+  mocap sets of the data folder;
+* warm start: solver iterations and CPU seconds per window (windows after the first) with the
+  warm start and with every window solved from scratch;
+* throughput: frames per second sustained and window latency for 1k, 10k and 30k tracks.
 
 Frames are fed as fast as the pipeline takes them, on one thread, with no window skipped:
 ``fps = frames published / (time in add_frame + solve)``; a window's latency is from the moment
-it closed (``Window.closed_at``) to the end of its solve.
+it closed (``Window.closed_at``) to the end of its solve. The solver is GrassmannNRSfM (defaults)
+where it exists, else the rigid factorisation (recorded in the JSON).
 """
 import time
 from types import SimpleNamespace
@@ -14,14 +21,35 @@ import numpy as np
 from . import common, plot
 
 PIXELS_PER_UNIT = 200.0
+WINDOW, STRIDE = 30, 10
 
 
 class RigidSolver:
-    """``fit(W, init=None)`` by rigid factorisation, for when the ADMM solver is absent."""
+    """``fit(W, init=None)`` by rigid factorisation (ignores ``init``): the per-window
+    reference, and the solver when the ADMM one is absent."""
 
     def fit(self, W, init=None):
         out = common.solve('rigid', W)
         return SimpleNamespace(S=out['S'], R=out['R'], groups=None, report=None)
+
+
+class Counting:
+    """A solver factory that records ``(iterations, CPU seconds)`` of each fit."""
+
+    def __init__(self, factory):
+        self.factory, self.fits = factory, []
+
+    def __call__(self):
+        inner, fits = self.factory(), self.fits
+
+        class Fit:
+            def fit(self, W, init=None):
+                start = time.process_time()
+                result = inner.fit(W, init=init) if init is not None else inner.fit(W)
+                fits.append((getattr(result.report, 'iterations', 0),
+                             time.process_time() - start))
+                return result
+        return Fit()
 
 
 def solver_factory():
@@ -32,6 +60,67 @@ def solver_factory():
     if not common.missing('rigid'):
         return RigidSolver, 'rigid (GrassmannNRSfM not available)'
     return None, common.missing('rigid')
+
+
+def streamed(W, factory, **options):
+    """Run ``W: (2F, P)`` through a SlidingWindow; ``(S: (3F, P) as published, pipeline)``."""
+    from grass_nrsfm_ros.pipeline import reconstruct_sequence, SlidingWindow
+    F, P = W.shape[0] // 2, W.shape[1]
+    ids = np.arange(P, dtype=np.uint32)
+    pipe = SlidingWindow(factory, window_size=WINDOW, window_stride=STRIDE, **options)
+    results = reconstruct_sequence(pipe, np.arange(F), [(ids, W[2 * f:2 * f + 2].T)
+                                                        for f in range(F)])
+    assert [r.stamp_ns for r in results] == list(range(F)), 'every frame published once'
+    return np.vstack([r.xyz.T for r in results]), pipe
+
+
+def per_window(fits):
+    """Mean iterations and CPU seconds of the windows after the first."""
+    later = fits[1:] or fits
+    return float(np.mean([f[0] for f in later])), float(np.mean([f[1] for f in later]))
+
+
+def compare(name, W, S, factory):
+    """One accuracy row: whole vs streaming (warm, cold) vs rigid per window, and the warm
+    start's savings."""
+    from grass_nrsfm_ros.nrsfm.metrics import e3d
+    whole, wall, cpu = common.timed(factory().fit, W)
+    row = {'sequence': name, 'F': W.shape[0] // 2, 'P': W.shape[1],
+           'e3d_whole': e3d(whole.S, S), 'whole_cpu_s': cpu}
+    for label, warm in (('warm', True), ('cold', False)):
+        counting = Counting(factory)
+        S_stream, pipe = streamed(W, counting, warm_start=warm)
+        iterations, seconds = per_window(counting.fits)
+        row.update({f'e3d_stream_{label}': e3d(S_stream, S), f'iterations_{label}': iterations,
+                    f'cpu_per_window_{label}_s': seconds})
+    row['e3d_rigid_per_window'] = e3d(streamed(W, RigidSolver, warm_start=False)[0], S)
+    row['windows'] = len(counting.fits)
+    common.log(f"{name:>16} F={row['F']:4d} P={row['P']:5d}  e3D whole {row['e3d_whole']:.4f}"
+               f"  stream {row['e3d_stream_warm']:.4f} (cold {row['e3d_stream_cold']:.4f})"
+               f"  rigid/window {row['e3d_rigid_per_window']:.4f}  iterations warm "
+               f"{row['iterations_warm']:.0f} / cold {row['iterations_cold']:.0f}, CPU/window "
+               f"{row['cpu_per_window_warm_s']:.2f} / {row['cpu_per_window_cold_s']:.2f} s")
+    return row
+
+
+def accuracy_sequences(mode):
+    """``[(name, W, S)]`` for the accuracy comparison."""
+    from grass_nrsfm_ros.nrsfm.synthetic import kinds
+    out = []
+    faces = mode.pick((), ((60, 3000),), ((60, 3000), (99, 3000)))
+    for F, P in faces:
+        face = common.dense_face(F, P)
+        if face is not None:
+            out.append((f'face{F}x{P}', *face))
+    for kind in mode.pick(('bending',), ('bending', 'waving'), kinds()):
+        F = mode.pick(35, 60, 60)
+        out.append((f'{kind}{F}', *common.synthetic(kind, F, mode.pick(300, 1000, 1000))))
+    for name in mode.pick((), ('pickup', 'face'),
+                          [k for k, (_, fam) in common.DATASETS.items() if fam == 'mocap']):
+        data = common.load_dataset(name)
+        if data is not None:
+            out.append((name, data[0], data[1]))
+    return out
 
 
 def stream(P, n_frames, window_size, stride, factory):
@@ -54,11 +143,17 @@ def stream(P, n_frames, window_size, stride, factory):
             busy += done - t
             solve_s.append(done - t)
             latencies.append(done - window.closed_at)
-    return {'P': P, 'frames': n_frames, 'window_size': window_size, 'window_stride': stride,
-            'windows': len(latencies), 'frames_published': published,
-            'fps': published / busy if busy > 0 else None,
-            'latency_mean_s': float(np.mean(latencies)), 'latency_max_s': float(np.max(latencies)),
-            'solve_mean_s': float(np.mean(solve_s)), 'stats': dict(pipe.stats)}
+    row = {'P': P, 'frames': n_frames, 'window_size': window_size, 'window_stride': stride,
+           'windows': len(latencies), 'frames_published': published,
+           'fps': published / busy if busy > 0 else None,
+           'latency_mean_s': float(np.mean(latencies)),
+           'latency_max_s': float(np.max(latencies)),
+           'latency_steady_s': float(np.mean(latencies[1:] or latencies)),
+           'solve_mean_s': float(np.mean(solve_s)), 'stats': dict(pipe.stats)}
+    common.log(f"{P:>6} tracks: {row['fps']:.2f} frames/s sustained, window latency mean "
+               f"{row['latency_mean_s']:.2f} s (first {latencies[0]:.2f}, later "
+               f"{row['latency_steady_s']:.2f}, max {row['latency_max_s']:.2f})")
+    return row
 
 
 def run(mode):
@@ -70,16 +165,23 @@ def run(mode):
     factory, solver = solver_factory()
     if factory is None:
         return {'rows': [], 'skipped': [{'why': solver}]}
+    rows, skipped, accuracy = [], [], []
+    if solver == 'ours':
+        for name, W, S in accuracy_sequences(mode):
+            try:
+                accuracy.append(compare(name, W, S, factory))
+            except Exception as exc:
+                skipped.append({'sequence': name, 'why': f'{type(exc).__name__}: {exc}'})
     tracks = mode.pick((1000,), (1000, 10000), (1000, 10000, 30000))
-    n_frames, window, stride = mode.pick((15, 10, 5), (50, 30, 10), (90, 30, 10))
-    rows, skipped = [], []
+    n_frames, window, stride = mode.pick((15, 10, 5), (50, WINDOW, STRIDE),
+                                         (90, WINDOW, STRIDE))
     for P in tracks:
         common.log(f'streaming: {P} tracks, {n_frames} frames, window {window}/{stride}')
         try:
             rows.append({'solver': solver, **stream(P, n_frames, window, stride, factory)})
         except Exception as exc:
             skipped.append({'P': P, 'why': f'{type(exc).__name__}: {exc}'})
-    out = {'solver': solver, 'rows': rows, 'skipped': skipped}
+    out = {'solver': solver, 'rows': rows, 'accuracy': accuracy, 'skipped': skipped}
     if mode.name != 'smoke' and rows:
         series = {solver: ([np.log10(r['P']) for r in rows], [r['fps'] for r in rows])}
         path = plot.line_plot(mode.out_dir / 'streaming_fps.png', series,
