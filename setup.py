@@ -44,6 +44,7 @@ setup(
         'numpy>=1.24',
         'scipy>=1.10',
         'scikit-learn>=1.3',
+        'threadpoolctl>=3',
         'mcap>=1.1',
         'mcap-ros2-support>=0.5',
         'rosbags>=0.10,<0.12',
@@ -51,7 +52,8 @@ setup(
     ],
     extras_require={
         'ros': ROS_JAZZY_WHEELS,
-        'test': ['pytest>=7', 'hypothesis>=6', 'colcon-common-extensions>=0.3'],
+        'test': ['pytest>=7', 'hypothesis>=6', 'colcon-common-extensions>=0.3', 'flake8>=6',
+                 'flake8-quotes>=3.3', 'flake8-import-order>=0.18'],
     },
     tests_require=['pytest'],
     zip_safe=True,

@@ -157,7 +157,7 @@ def test_recorder_serializes_rclpy_messages(tmp_path):
     assert [f.stamp_ns for f in frames] == [(100 + i) * 10**9 + 7 for i in range(5)]
 
 
-KILLED_WRITER = textwrap.dedent('''
+KILLED_WRITER = textwrap.dedent("""
     import sys, time
     import numpy as np
     from grass_nrsfm_ros import bag
@@ -172,7 +172,7 @@ KILLED_WRITER = textwrap.dedent('''
         print(i + 1, flush=True)
         i += 1
         time.sleep(0.002)
-''')
+""")
 
 
 def test_kill_9_loses_at_most_the_last_chunk_and_recover_rescues_the_rest(tmp_path):
@@ -230,7 +230,7 @@ def test_unwritable_path_gives_one_error_and_writes_do_not_raise(tmp_path):
     assert rec.dropped == 5 and rec.written == 0
 
 
-FULL_DISK_WRITER = textwrap.dedent('''
+FULL_DISK_WRITER = textwrap.dedent("""
     import resource, signal, sys
     from grass_nrsfm_ros import bag
     from grass_nrsfm_ros.cloud import tracks_array
@@ -245,7 +245,7 @@ FULL_DISK_WRITER = textwrap.dedent('''
         rec.write('/tracks', raw, i)
     rec.close()
     print(len(errors), rec.written, rec.dropped, repr(rec.error))
-''')
+""")
 
 
 def test_full_disk_gives_one_error_and_the_caller_goes_on(tmp_path):

@@ -6,7 +6,7 @@ from grass_nrsfm_ros.nrsfm.faces import (ENV_MODEL, expression_weights, interpol
                                          load_face_model, make_face_sequence, sample_surface)
 from grass_nrsfm_ros.nrsfm.measurement import as_frames, centre, to_camera
 from grass_nrsfm_ros.nrsfm.metrics import e3d
-from test_synthetic import rigid_factorisation
+from test_synthetic import rigid_with_residual  # noqa: I100, I201
 
 RELPATH = 'sfm_face/sfm_face.npz'
 
@@ -50,7 +50,7 @@ def test_full_size_face_sequence(model):
     assert (weights.max(axis=0) > 0.4).sum() >= 4      # several expressions come and go
     assert np.abs(np.diff(weights, axis=0)).max() < 0.2   # smoothly
     # a genuinely deforming face: rigid factorisation leaves a clear error
-    _, S, residual = rigid_factorisation(seq.W[:, ::8])
+    _, S, residual = rigid_with_residual(seq.W[:, ::8])
     assert residual > 0.01
     assert e3d(S, seq.S[:, ::8]) > 0.03
 

@@ -46,14 +46,15 @@ def test_offline_reconstruction_equals_the_live_node(ros_env, tmp_path):
 
     uv = as_frames(seq.W, 2).transpose(0, 2, 1)
     ids = np.arange(seq.n_points, dtype=np.uint32)
-    with node_with_feeder(ros_env, tmp_path / 'node.log', launch=REAL_SOLVER_LAUNCH) as (_, feeder):
+    log = tmp_path / 'node.log'
+    with node_with_feeder(ros_env, log, launch=REAL_SOLVER_LAUNCH) as (_, feeder):
         for f, stamp in enumerate(stamps):
             header = Header(stamp=Time(sec=int(stamp) // 10 ** 9, nanosec=int(stamp) % 10 ** 9),
                             frame_id='camera')
             feeder.pub.publish(cloud.encode_tracks(ids, uv[f], header))
             time.sleep(PERIOD_NS / 1e9)
         assert feeder.wait_for(lambda: len(feeder.points) >= seq.n_frames, 120), \
-            (tmp_path / 'node.log').read_text()
+            log.read_text()
         live = clouds_by_stamp(feeder.points)
 
     assert sorted(live) == list(stamps)                      # each frame published once, all
@@ -63,6 +64,6 @@ def test_offline_reconstruction_equals_the_live_node(ros_env, tmp_path):
         np.testing.assert_allclose(live[stamp][1], offline[stamp][1], rtol=0, atol=1e-4 * scale)
     S_live = np.concatenate([live[s][1].T for s in stamps])
     S_off = np.concatenate([offline[s][1].T for s in stamps])
-    print(f"max |live - offline| = {np.abs(S_live - S_off).max():.3g}, e3D live "
-          f"{e3d(S_live, seq.S):.4f}, offline {e3d(S_off, seq.S):.4f}")
+    print(f'max |live - offline| = {np.abs(S_live - S_off).max():.3g}, e3D live '
+          f'{e3d(S_live, seq.S):.4f}, offline {e3d(S_off, seq.S):.4f}')
     assert abs(e3d(S_live, seq.S) - e3d(S_off, seq.S)) < 1e-4

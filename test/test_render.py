@@ -95,7 +95,6 @@ def test_render_command_npz_and_bag(tmp_path, capsys):
     assert 'outside 0..5' in capsys.readouterr().err
 
 
-
 def test_estimate_is_aligned_to_truth_before_drawing():
     from grass_nrsfm_ros.commands.render import aligned_pair
 

@@ -6,40 +6,18 @@ import pytest
 from conftest import data_root
 from grass_nrsfm_ros.nrsfm.measurement import as_frames, centre, from_frames, to_camera
 from grass_nrsfm_ros.nrsfm.metrics import e3d
-from grass_nrsfm_ros.nrsfm.synthetic import (Sequence, camera_motions, default_sequence, kinds,
-                                             make_sequence, observe, rotations_from_angles)
+from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
+from grass_nrsfm_ros.nrsfm.synthetic import (camera_motions, default_sequence, kinds,
+                                             make_sequence, observe, rotations_from_angles,
+                                             Sequence)
 
 
-def rigid_factorisation(W):
-    """Tomasi-Kanade rank-3 factorisation with metric upgrade (a test-local baseline).
-
-    ``W: (2F, P)`` -> ``(R: (F, 3, 3), S: (3F, P))`` camera frame, plus the relative rank-3
-    residual of the centred tracks.
-    """
-    Wc, _ = centre(W)
-    U, s, Vt = np.linalg.svd(Wc, full_matrices=False)
-    residual = np.sqrt((s[3:] ** 2).sum() / (s ** 2).sum())
-    M = U[:, :3] * np.sqrt(s[:3])
-    shape = np.sqrt(s[:3])[:, None] * Vt[:3]
-    a, b = M[0::2], M[1::2]
-
-    def sym(x, y):   # coefficients of x^T L y in the 6 unknowns of a symmetric L
-        return np.stack([x[:, 0] * y[:, 0], x[:, 0] * y[:, 1] + x[:, 1] * y[:, 0],
-                         x[:, 0] * y[:, 2] + x[:, 2] * y[:, 0], x[:, 1] * y[:, 1],
-                         x[:, 1] * y[:, 2] + x[:, 2] * y[:, 1], x[:, 2] * y[:, 2]], axis=1)
-
-    F = len(a)
-    lhs = np.vstack([sym(a, a), sym(b, b), sym(a, b)])
-    rhs = np.concatenate([np.ones(2 * F), np.zeros(F)])
-    q = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
-    L = np.array([[q[0], q[1], q[2]], [q[1], q[3], q[4]], [q[2], q[4], q[5]]])
-    w, V = np.linalg.eigh(L)
-    Q = V * np.sqrt(np.clip(w, 1e-9 * w.max(), None))
-    U2, _, Vt2 = np.linalg.svd(as_frames(M @ Q, 2))
-    R2 = U2 @ np.eye(2, 3) @ Vt2
-    R = np.concatenate([R2, np.cross(R2[:, 0], R2[:, 1])[:, None]], axis=1)
-    S = from_frames(R @ np.linalg.solve(Q, shape)[None])
-    return R, S, residual
+def rigid_with_residual(W):
+    """The package's rigid factorisation of ``W: (2F, P)`` -> ``(R, S)``, plus the relative
+    rank-3 residual of the centred tracks."""
+    s = np.linalg.svd(centre(W)[0], compute_uv=False)
+    R, S = rigid_factorisation(W)
+    return R, S, np.sqrt((s[3:] ** 2).sum() / (s ** 2).sum())
 
 
 @pytest.mark.parametrize('camera', camera_motions())
@@ -133,7 +111,7 @@ def test_rigid_baseline_is_exact_on_a_rigid_sequence():
     rigid_world = from_frames(np.repeat(first, 30, axis=0))
     rigid = from_frames(seq.R @ as_frames(rigid_world, 3))
     W = from_frames(as_frames(rigid, 3)[:, :2])
-    _, S, residual = rigid_factorisation(W)
+    _, S, residual = rigid_with_residual(W)
     assert residual < 1e-10
     assert e3d(S, rigid) < 1e-6
 
@@ -143,7 +121,7 @@ def test_every_kind_deforms_non_rigidly(kind):
     seq = make_sequence(kind, n_frames=40, n_points=800, camera='orbit', seed=0)
     sv = np.linalg.svd(seq.S_world, compute_uv=False)
     assert sv[3] / sv[0] > 0.03                 # rank of the stacked shapes well above 3
-    _, S, residual = rigid_factorisation(seq.W)
+    _, S, residual = rigid_with_residual(seq.W)
     assert residual > 0.02                      # rank 3 cannot explain the tracks
     assert e3d(S, seq.S) > 0.05                 # and the best rigid shape is wrong
 

@@ -3,9 +3,9 @@
 Conventions (see :mod:`.measurement`): ``W: (2F, P)`` tracks, ``S: (3F, P)`` camera-frame
 shapes, ``R: (F, 3, 3)`` world-to-camera rotations.
 """
-from .measurement import InvalidInputError, centre, validate_tracks
-from .metrics import e3d, e3d_akhter, procrustes_align, rotation_error
 from .admm import GrassmannNRSfM, NRSfMResult, SolverReport, WarmStart
+from .measurement import centre, InvalidInputError, validate_tracks
+from .metrics import e3d, e3d_akhter, procrustes_align, rotation_error
 
 __all__ = ['InvalidInputError', 'centre', 'validate_tracks', 'e3d', 'e3d_akhter',
            'procrustes_align', 'rotation_error', 'GrassmannNRSfM', 'NRSfMResult',

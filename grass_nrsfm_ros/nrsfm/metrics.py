@@ -15,7 +15,7 @@ from .measurement import as_frames, from_frames, validate_shapes
 
 
 def _nearest_orthogonal(M, reflection):
-    """Nearest orthogonal matrices to ``M: (..., 3, 3)`` (``U V^T``); det fixed if no reflection."""
+    """Nearest orthogonal matrices to ``M: (..., 3, 3)`` (``U V^T``); det +1 unless reflection."""
     U, _, Vt = np.linalg.svd(M)
     if not reflection:
         d = np.where(np.linalg.det(U @ Vt) < 0, -1.0, 1.0)
