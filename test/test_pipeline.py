@@ -243,8 +243,8 @@ def test_context_frames_are_solved_again_but_not_republished():
     np.testing.assert_allclose(W_last[:30], W[30:60][:, np.argsort(ids)])   # frames 15..29
     # every frame known: the previous solution's rotations on frames 15..49, fitted ones after
     assert init.known.all()
-    np.testing.assert_allclose(init.R[:35], before.R[np.searchsorted(before.stamps,
-                                                                      np.arange(15, 50))])
+    shared = np.searchsorted(before.stamps, np.arange(15, 50))
+    np.testing.assert_allclose(init.R[:35], before.R[shared])
     assert e3d(stacked(results, ids), S) < 0.042
 
 
