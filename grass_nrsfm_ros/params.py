@@ -71,6 +71,15 @@ NODE_PARAMS = (
               'previous frame starts a new sequence (all ids changed).', range=(4, 10000000)),
     ParamSpec('warm_start', True, bool,
               "Start each window's solve from the previous window's solution on the overlap."),
+    ParamSpec('context_frames', 60, int,
+              'Earlier frames solved again with each window (warm-started from their last '
+              'solution, not republished): the shape prior sees window + context frames. 0: '
+              'the window alone.', range=(0, 100000)),
+    ParamSpec('warm_rotations', 'refine', str,
+              "Rotations of a warm-started solve: 'refine' (Dai's over all frames, aligned to "
+              "the previous solution), 'fit' (previous ones; new frames fitted to the previous "
+              "shape: cheapest, good on dense surfaces), 'solver' (previous ones fixed, new "
+              "ones from the solver's estimate).", choices=('refine', 'fit', 'solver')),
     ParamSpec('align_windows', True, bool,
               "Flip each window's depth to agree with the previous window on the overlap, so "
               'published clouds keep one orientation over time.'),
@@ -223,7 +232,8 @@ def solver_kwargs(config):
 
 def window_kwargs(config):
     """SlidingWindow's keyword arguments from a config dict."""
-    keys = ('window_size', 'window_stride', 'min_tracks', 'warm_start', 'align_windows')
+    keys = ('window_size', 'window_stride', 'min_tracks', 'warm_start', 'align_windows',
+            'context_frames', 'warm_rotations')
     return {k: config[k] for k in keys if k in config}
 
 

@@ -49,6 +49,10 @@ import numpy as np
 from grass_nrsfm_ros.nrsfm.measurement import as_frames, centre
 
 MIN_WINDOW_FRAMES = 3
+#: a context frame joins a solve only while the tracks common to it, the newer context frames
+#: and the window stay at least this share of the window's tracks
+CONTEXT_TRACKS = 0.9
+WARM_ROTATIONS = ('solver', 'fit', 'refine')
 DEPTH_FLIP = np.diag([1.0, 1.0, -1.0])
 
 
@@ -73,7 +77,9 @@ class Frame:
 @dataclass(frozen=True)
 class Window:
     """A window ready to solve: ``W: (2F, P)`` pixels of the ``ids: (P,)`` common tracks over
-    frames ``stamps: (F,)`` (ascending); ``closed_at``: ``time.monotonic()`` when it closed."""
+    frames ``stamps: (F,)`` (ascending); ``closed_at``: ``time.monotonic()`` when it closed;
+    ``context``: the earlier Frames of its sequence (oldest first, at most ``context_frames``)
+    solved with it but not published by it."""
 
     sequence: int
     index: int
@@ -82,6 +88,7 @@ class Window:
     ids: np.ndarray
     W: np.ndarray
     closed_at: float
+    context: tuple = ()
 
     @property
     def n_frames(self):
@@ -97,6 +104,18 @@ class FrameResult:
     frame_id: str
     ids: np.ndarray
     xyz: np.ndarray
+
+
+@dataclass(frozen=True)
+class Problem:
+    """What one solve reconstructs: ``W: (2F, P)`` of tracks ``ids: (P,)`` over ``stamps: (F,)``
+    = ``n_context`` context frames then the window's frames."""
+
+    sequence: int
+    stamps: np.ndarray
+    ids: np.ndarray
+    W: np.ndarray
+    n_context: int
 
 
 @dataclass
@@ -151,19 +170,25 @@ class SlidingWindow:
 
     def __init__(self, solver_factory=None, *, window_size=30, window_stride=10, min_tracks=10,
                  warm_start=True, align_windows=True, metres_per_pixel=1.0,
-                 warm_start_class=None):
+                 context_frames=60, warm_rotations='refine', warm_start_class=None):
         if not MIN_WINDOW_FRAMES <= window_size:
             raise ValueError(f'window_size={window_size}: at least {MIN_WINDOW_FRAMES} frames')
         if not 1 <= window_stride <= window_size:
             raise ValueError(f'window_stride={window_stride}: must be in 1..window_size '
                              f'({window_size})')
+        if context_frames < 0:
+            raise ValueError(f'context_frames={context_frames}: must be >= 0')
+        if warm_rotations not in WARM_ROTATIONS:
+            raise ValueError(f'warm_rotations={warm_rotations!r}: one of {WARM_ROTATIONS}')
         self.solver_factory = solver_factory or default_solver_factory()
+        self.context_frames, self.warm_rotations = int(context_frames), warm_rotations
         self.window_size, self.window_stride = int(window_size), int(window_stride)
         self.min_tracks = int(min_tracks)
         self.warm_start, self.align_windows = bool(warm_start), bool(align_windows)
         self.metres_per_pixel = float(metres_per_pixel)
         self._warm_start_class = warm_start_class
         self._frames = []               # buffered Frames, ascending stamps
+        self._history = deque(maxlen=max(self.context_frames, 1))   # Frames that left _frames
         self._sequence = 0
         self._window_index = 0
         self._emitted_until = None      # newest stamp of the last emitted window
@@ -183,6 +208,7 @@ class SlidingWindow:
         if new_sequence:
             windows += self.flush()
             self._frames = []
+            self._history.clear()
             self._sequence += 1
             self._emitted_until = None          # a new sequence's stamps may start earlier
             self._count('resets')
@@ -191,6 +217,7 @@ class SlidingWindow:
         self._count('frames')
         if len(self._frames) >= self.window_size:
             windows.append(self._emit(self._frames[:self.window_size]))
+            self._history.extend(self._frames[:self.window_stride])
             self._frames = self._frames[self.window_stride:]
         return windows
 
@@ -252,29 +279,33 @@ class SlidingWindow:
             if self._emitted_until is None or s > self._emitted_until:
                 self._unpublished.append((self._sequence, int(s)))
         self._emitted_until = int(stamps[-1])
+        context = tuple(f for f in self._history if f.stamp_ns < stamps[0]) \
+            if self.context_frames else ()
         window = Window(self._sequence, self._window_index, stamps,
-                        tuple(f.frame_id for f in frames), common, W, time.monotonic())
+                        tuple(f.frame_id for f in frames), common, W, time.monotonic(),
+                        context)
         self._window_index += 1
         self._count('windows')
         return window
 
     # -- solve side -------------------------------------------------------------------------
     def solve(self, window, progress=None):
-        """Reconstruct ``window``; return FrameResults of its frames not yet published (in stamp
-        order). Raises WindowError when its frames share fewer than ``min_tracks`` tracks.
-        ``progress(iteration, report)`` is handed to solvers whose ``fit`` takes it (an
-        exception raised there abandons the solve and propagates)."""
+        """Reconstruct ``window`` (with its context frames); return FrameResults of its frames
+        not yet published (in stamp order). Raises WindowError when its frames share fewer than
+        ``min_tracks`` tracks. ``progress(iteration, report)`` is handed to solvers whose
+        ``fit`` takes it (an exception raised there abandons the solve and propagates)."""
         if window.ids.size < self.min_tracks:
             self._count('failed')
             raise WindowError(f'window {window.index}: its {window.n_frames} frames share '
                               f'{window.ids.size} tracks (< min_tracks={self.min_tracks})')
-        Wc, _ = centre(window.W)
-        init = self._warm_start_for(window, Wc) if self.warm_start else None
+        problem = self._problem(window)
+        Wc, _ = centre(problem.W)
+        init = self._warm_start_for(problem, Wc) if self.warm_start else None
         solver = self.solver_factory()
         kwargs = {} if init is None else {'init': init}
         if progress is not None and _takes_progress(solver.fit):
             kwargs['progress'] = progress
-        result = solver.fit(window.W, **kwargs)
+        result = solver.fit(problem.W, **kwargs)
         S = np.array(result.S, dtype=np.float64)
         R = np.array(result.R, dtype=np.float64)
         if not (np.isfinite(S).all() and np.isfinite(R).all()):
@@ -283,21 +314,48 @@ class SlidingWindow:
                               'rotations; nothing published')
         Z = as_frames(S, 3)[:, 2, :]
         Z -= Z.mean(axis=1, keepdims=True)
-        if self.align_windows and self._depth_disagrees(window, Z):
+        if self.align_windows and self._depth_disagrees(problem, Z):
             S = DEPTH_FLIP @ as_frames(S, 3)
             S = S.reshape(-1, S.shape[-1])
             R = DEPTH_FLIP @ R @ DEPTH_FLIP
             Z = as_frames(S, 3)[:, 2, :]
-        uv = window.W.reshape(window.n_frames, 2, -1).transpose(0, 2, 1)
+        F = len(problem.stamps)
+        uv = problem.W.reshape(F, 2, -1).transpose(0, 2, 1)
         residual = float(np.linalg.norm(as_frames(Wc, 2) - as_frames(S, 3)[:, :2, :])
                          / max(np.linalg.norm(Wc), 1e-300))
-        self._previous = Solution(window.sequence, window.stamps, window.ids, uv, S, R,
+        self._previous = Solution(window.sequence, problem.stamps, problem.ids, uv, S, R,
                                   getattr(result, 'groups', None), getattr(result, 'report', None),
                                   residual)
         self._count('solved')
-        return self._publish(window, as_frames(Wc, 2), Z)
+        c = problem.n_context
+        return self._publish(window, problem.ids, as_frames(Wc, 2)[c:], Z[c:])
 
-    def _publish(self, window, XY, Z):
+    def _problem(self, window):
+        """What ``window`` is solved as: its context frames (newest first dropped last) then its
+        own frames, on the tracks common to all of them. Context frames are dropped, oldest
+        first, while the common tracks are fewer than ``CONTEXT_TRACKS`` of the window's."""
+        context = window.context[len(window.context) - self.context_frames:] \
+            if self.context_frames else ()
+        ids = window.ids
+        kept = 0
+        for frame in reversed(context):
+            common = np.intersect1d(ids, frame.ids, assume_unique=True)
+            if common.size < max(self.min_tracks, CONTEXT_TRACKS * window.ids.size):
+                break
+            ids, kept = common, kept + 1
+        context = context[len(context) - kept:] if kept else ()
+        stamps = np.concatenate([np.array([f.stamp_ns for f in context], dtype=np.int64),
+                                 window.stamps])
+        if ids.size == window.ids.size:
+            W_window = window.W
+        else:
+            cols = np.searchsorted(window.ids, ids)
+            W_window = window.W[:, cols]
+        blocks = [f.uv[np.searchsorted(f.ids, ids)].T for f in context]
+        W = np.vstack(blocks + [W_window]) if blocks else W_window
+        return Problem(window.sequence, stamps, ids, W, len(context))
+
+    def _publish(self, window, ids, XY, Z):
         done = self._published_until.get(window.sequence)
         fresh = [i for i, s in enumerate(window.stamps) if done is None or s > done]
         if not fresh:
@@ -312,30 +370,30 @@ class SlidingWindow:
         scale = self.metres_per_pixel
         out = []
         for i in fresh:
-            xyz = np.empty((window.ids.size, 3))
+            xyz = np.empty((ids.size, 3))
             xyz[:, :2] = XY[i].T
             xyz[:, 2] = Z[i]
-            out.append(FrameResult(int(window.stamps[i]), window.frame_ids[i], window.ids,
+            out.append(FrameResult(int(window.stamps[i]), window.frame_ids[i], ids,
                                    xyz * scale))
         self._count('published', len(out))
         return out
 
-    def _overlap(self, window):
+    def _overlap(self, problem):
         """Indices ``(frames_new, frames_old, tracks_new, tracks_old)`` shared with the previous
         solution, or None when it belongs to another sequence or shares too little."""
         p = self._previous
-        if p is None or p.sequence != window.sequence:
+        if p is None or p.sequence != problem.sequence:
             return None
-        _, fn, fo = np.intersect1d(window.stamps, p.stamps, return_indices=True)
-        _, tn, to = np.intersect1d(window.ids, p.ids, assume_unique=True, return_indices=True)
+        _, fn, fo = np.intersect1d(problem.stamps, p.stamps, return_indices=True)
+        _, tn, to = np.intersect1d(problem.ids, p.ids, assume_unique=True, return_indices=True)
         if fn.size == 0 or tn.size < self.min_tracks:
             return None
         return fn, fo, tn, to
 
-    def _depth_disagrees(self, window, Z):
+    def _depth_disagrees(self, problem, Z):
         """True if depth ``Z: (F, P)`` (centred per frame) correlates negatively with the
         previous window's depth on the overlapping frames and tracks."""
-        ov = self._overlap(window)
+        ov = self._overlap(problem)
         if ov is None:
             return False
         fn, fo, tn, to = ov
@@ -345,18 +403,18 @@ class SlidingWindow:
         old = old - old.mean(axis=1, keepdims=True)
         return float(np.sum(new * old)) < 0.0
 
-    def _warm_start_for(self, window, Wc):
-        """WarmStart for ``window`` (centred tracks ``Wc: (2F, P)``) from the previous solution,
-        or None. Known frames: those shared with the previous window."""
-        ov = self._overlap(window)
+    def _warm_start_for(self, problem, Wc):
+        """WarmStart for ``problem`` (centred tracks ``Wc: (2F, P)``) from the previous
+        solution, or None. Known frames: those shared with the previous solution."""
+        ov = self._overlap(problem)
         cls = self._warm_start_class or _warm_start_class()
         if cls is None:
             return None
         if ov is None:
-            return self._rigid_start(window, cls)
+            return self._rigid_start(problem.W, cls)
         fn, fo, tn, to = ov
         p = self._previous
-        F, P = window.n_frames, window.ids.size
+        F, P = len(problem.stamps), problem.ids.size
         # every new frame copies the nearest shared frame (in time): rotation and depth
         nearest = fn[np.clip(np.searchsorted(fn, np.arange(F)), 0, fn.size - 1)]
         source = fo[np.searchsorted(fn, nearest)]
@@ -368,7 +426,7 @@ class SlidingWindow:
         if missing.any():
             from scipy.spatial import cKDTree
             tree = cKDTree(p.uv[fo[0]][to])
-            new_uv = window.W.reshape(F, 2, P)[fn[0]].T[missing]     # pixels, same frame
+            new_uv = problem.W.reshape(F, 2, P)[fn[0]].T[missing]     # pixels, same frame
             donor[missing] = to[tree.query(new_uv)[1]]
         Zold = as_frames(p.S, 3)[:, 2, :]
         Z = Zold[source][:, donor]
@@ -378,16 +436,48 @@ class SlidingWindow:
         S[:, 2, :] = Z
         known = np.zeros(F, dtype=bool)
         known[fn] = True
+        R = self._warm_rotations(Wc, R, as_frames(p.S, 3)[source][:, :, donor], known)
+        if self.warm_rotations != 'solver':
+            known[:] = True
         groups = None if p.groups is None else np.asarray(p.groups)[donor]
         return cls(R=R, S=S.reshape(3 * F, P), known=known, groups=groups)
 
+    def _warm_rotations(self, Wc, R, S, known):
+        """Rotations ``(F, 3, 3)`` of the warm start. ``R``: the previous solution's on known
+        frames, the nearest known frame's elsewhere; ``S: (F, 3, P)``: the camera-frame shape
+        of the frame each rotation came from.
+        'solver': as given (the solver estimates the unknown ones); 'fit': each unknown frame
+        fitted to its tracks against the world shape of its source frame; 'refine': Dai's
+        rotations over all frames, aligned to the known ones by one world rotation."""
+        if self.warm_rotations == 'solver' or known.all():
+            return R
+        if self.warm_rotations == 'fit':
+            from grass_nrsfm_ros.nrsfm.rotation import _rotations_from_rows
+            S = S - S.mean(axis=2, keepdims=True)
+            X = R.transpose(0, 2, 1) @ S                     # world shapes of the source frames
+            M = as_frames(Wc, 2) @ np.linalg.pinv(X)         # (F, 2, 3) camera rows
+            fitted, ok = _rotations_from_rows(M)
+            out = R.copy()
+            use = ~known & ok
+            out[use] = fitted[use]
+            return out
+        from grass_nrsfm_ros.nrsfm.rotation import estimate_rotations
+        from grass_nrsfm_ros.nrsfm.admm import align_rotations
+        est = estimate_rotations(Wc).R
+        probe = np.concatenate([est, np.eye(3)[None]])     # the last row yields the global Q
+        aligned = align_rotations(probe, np.concatenate([R, np.eye(3)[None]]),
+                                  np.append(known, False))
+        Q = aligned[-1]                     # D I D = I: the probe is Q for either twin
+        twins = (est @ Q, DEPTH_FLIP @ est @ DEPTH_FLIP @ Q)
+        return min(twins, key=lambda t: np.linalg.norm(t[known] - R[known]))
+
     @staticmethod
-    def _rigid_start(window, cls):
-        """WarmStart of a window with no previous solution: the rigid factorisation's rotations
+    def _rigid_start(W, cls):
+        """WarmStart of a problem with no previous solution: the rigid factorisation's rotations
         and camera-frame shape for every frame."""
         from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
-        R, S = rigid_factorisation(window.W)
-        return cls(R=R, S=S, known=np.ones(window.n_frames, dtype=bool), groups=None)
+        R, S = rigid_factorisation(W)
+        return cls(R=R, S=S, known=np.ones(W.shape[0] // 2, dtype=bool), groups=None)
 
     def _count(self, key, n=1):
         with self._lock:

@@ -196,7 +196,8 @@ def test_warm_start_carries_previous_solution_on_overlap():
             seen.append(init)
             return super().fit(W, init)
 
-    p = SlidingWindow(Recording, warm_start_class=RigidWarmStart)
+    p = SlidingWindow(Recording, warm_start_class=RigidWarmStart, context_frames=0,
+                      warm_rotations='solver')
     frames = frames_of(W, ids)
     windows = [w for f in range(40) for w in p.add_frame(f, *frames[f])]
     p.solve(windows[0])
@@ -216,6 +217,60 @@ def test_warm_start_carries_previous_solution_on_overlap():
                                as_frames(centre(windows[1].W)[0], 2))
 
 
+def test_context_frames_are_solved_again_but_not_republished():
+    W, S, ids = make_sequence(F=60, noise=0.5)
+    seen = []
+
+    class Recording(RigidALS):
+        def fit(self, W, init=None):
+            seen.append((W, init))
+            return super().fit(W, init)
+
+    p = SlidingWindow(Recording, warm_start_class=RigidWarmStart, context_frames=15,
+                      warm_rotations='fit')
+    frames = frames_of(W, ids)
+    results, contexts = [], []
+    for f in range(60):
+        for window in p.add_frame(f, *frames[f]):
+            contexts.append([c.stamp_ns for c in window.context])
+            before = p.previous
+            results += p.solve(window)
+    # windows 0..29, 10..39, 20..49, 30..59 with at most 15 earlier frames each (bounded)
+    assert contexts == [[], list(range(10)), list(range(5, 20)), list(range(15, 30))]
+    assert [r.stamp_ns for r in results] == list(range(60))          # each frame once
+    W_last, init = seen[-1]
+    assert W_last.shape == (2 * 45, ids.size)
+    np.testing.assert_allclose(W_last[:30], W[30:60][:, np.argsort(ids)])   # frames 15..29
+    # every frame known: the previous solution's rotations on frames 15..49, fitted ones after
+    assert init.known.all()
+    shared = np.searchsorted(before.stamps, np.arange(15, 50))
+    np.testing.assert_allclose(init.R[:35], before.R[shared])
+    assert e3d(stacked(results, ids), S) < 0.042
+
+
+def test_context_frames_dropped_when_they_share_too_few_tracks():
+    W, S, ids = make_sequence(F=40, P=100)
+    p = pipeline(context_frames=30)
+    gone = ids[:20]                                       # tracked only until frame 4
+    windows = []
+    for f, (fid, uv) in enumerate(frames_of(W, ids)):
+        keep = ~np.isin(fid, gone) if f >= 5 else np.ones(fid.size, bool)
+        windows += p.add_frame(f, fid[keep], uv[keep])
+    problem = p._problem(windows[1])                      # context: frames 0..9
+    # frames 0..4 lack no window track, so all ten share the window's 80 tracks
+    assert problem.n_context == 10 and problem.ids.size == 80
+    W2, S2, ids2 = make_sequence(F=40, P=100)
+    p = pipeline(context_frames=30)
+    windows = []
+    for f, (fid, uv) in enumerate(frames_of(W2, ids2)):
+        keep = ~np.isin(fid, ids2[:20]) if f < 5 else np.ones(fid.size, bool)
+        windows += p.add_frame(f, fid[keep], uv[keep])
+    problem = p._problem(windows[1])
+    # frames 0..4 lack 20 of the window's 100 tracks (< 90% common): only frames 5..9 kept
+    assert problem.n_context == 5 and problem.ids.size == 100
+    assert [r.stamp_ns for r in p.solve(windows[0]) + p.solve(windows[1])] == list(range(40))
+
+
 def test_warm_start_fills_new_tracks_from_nearest_old_track():
     W, S, ids = make_sequence(F=40, P=300, noise=0.0)
     seen = []
@@ -225,7 +280,8 @@ def test_warm_start_fills_new_tracks_from_nearest_old_track():
             seen.append(init)
             return super().fit(W, init)
 
-    p = SlidingWindow(Recording, warm_start_class=RigidWarmStart)
+    p = SlidingWindow(Recording, warm_start_class=RigidWarmStart, context_frames=0,
+                      warm_rotations='solver')
     late = ids[:30]
     for f, (fid, uv) in enumerate(frames_of(W, ids)):
         keep = ~np.isin(fid, late) if f < 5 else np.ones(fid.size, bool)
