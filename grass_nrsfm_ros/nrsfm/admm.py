@@ -466,9 +466,47 @@ def align_rotations(R_est, R_known, known):
     return best
 
 
+#: bytes of one (F, 3, n) column block in the element-wise sweeps (keeps a block in cache)
+BLOCK_BYTES = 1 << 20
+
+
+def column_blocks(edges, width):
+    """Column slices of at most ``width`` columns, each inside one group ``edges[k]:edges[k+1]``.
+
+    Returns ``[(k, slice)]`` in column order.
+    """
+    out = []
+    for k in range(len(edges) - 1):
+        for a in range(edges[k], edges[k + 1], width):
+            out.append((k, slice(a, min(a + width, edges[k + 1]))))
+    return out
+
+
+class _Buffer:
+    """One preallocated flat float64 buffer handing out contiguous ``(F, rows, n)`` views."""
+
+    def __init__(self, size):
+        self.flat = np.empty(size)
+
+    def view(self, F, rows, n):
+        return self.flat[:F * rows * n].reshape(F, rows, n)
+
+
 class _State:
     """ADMM variables of Algorithm 1 and one iteration. Arrays ``(F, 3, P)`` are world-frame
-    and column-permuted so that each spatial group is a contiguous slice."""
+    and column-permuted so that each spatial group is a contiguous slice.
+
+    One iteration makes two sweeps over column blocks (each block stays in cache while all its
+    element-wise work is done; no ``(F, 3, P)`` temporary is allocated):
+
+    1. per block: S update, (per group) spatial bases + zeta_s, ``X = S - Y1/beta`` and its
+       ``F x F`` Gram contribution, the data term ``||W - R S||^2``;
+    2. per block: ``S# = op X`` with the ``F x F`` operator ``op`` (SVT and zeta_t) found from
+       the Gram in between, the gap ``max |S# - S|`` and ``Y1 += beta (S# - S)``.
+
+    When ``F > 3P`` (long sparse sequences) the SVT goes through the ``3P x 3P`` Gram instead
+    (``tall``): X is one block and ``S#`` is formed directly.
+    """
 
     def __init__(self, Wn, R, S0, p, K_s, K_t, N_s, N_t, gamma, groups, warm):
         F, P = R.shape[0], Wn.shape[1]
@@ -488,17 +526,23 @@ class _State:
         self.S = np.ascontiguousarray(S0[:, :, self.order])
         self.Ssh = self.S.copy()
         self.Y1 = np.zeros_like(self.S)
+        self.R2 = np.ascontiguousarray(R[:, :2, :])                   # (F, 2, 3) cameras
+        self.R2t = np.ascontiguousarray(self.R2.transpose(0, 2, 1))  # (F, 3, 2)
+        self.tall = F > 3 * P
+        self.width = P if self.tall else max(1, min(P, BLOCK_BYTES // (24 * F)))
+        self.blocks = column_blocks(self.s_edges, self.width)
+        self.buffers = [_Buffer(3 * F * self.width) for _ in range(3)]
         self.s_bases = self._spatial_bases_exact()
         self.t_edges = gm.contiguous_blocks(F, K_t)
         X = self.Ssh.reshape(F, -1)
-        self.G = X @ X.T
-        self.t_bases = gm.block_bases(self.G, self.t_edges, N_t)
+        G = X @ X.T
+        self.t_bases = gm.block_bases(G, self.t_edges, N_t)
         self.C_s = np.zeros((K_s, K_s))
         self.J_s, self.Y2 = np.zeros_like(self.C_s), np.zeros_like(self.C_s)
         self.C_t = np.zeros((K_t, K_t))
         self.J_t, self.Y3 = np.zeros_like(self.C_t), np.zeros_like(self.C_t)
         self.Omega_s = self._omega_s()
-        self.Omega_t = gm.projection_kernel(gm.block_cross(self.G, self.t_edges, self.t_bases),
+        self.Omega_t = gm.projection_kernel(gm.block_cross(G, self.t_edges, self.t_bases),
                                             [v.shape[1] for v, _ in self.t_bases],
                                             p['delta'])
 
@@ -528,77 +572,181 @@ class _State:
         self.labels = new[perm]
         self.order = self.order[perm]
         self.s_edges = np.searchsorted(self.labels, np.arange(self.K_s + 1))
+        self.blocks = column_blocks(self.s_edges, self.width)
         for name in ('W', 'S', 'Ssh', 'Y1'):
-            setattr(self, name, np.ascontiguousarray(getattr(self, name)[:, :, perm]))
+            arr = getattr(self, name)
+            arr[...] = arr[:, :, perm]
         self.s_bases = self._spatial_bases_exact()
 
-    # one iteration -------------------------------------------------------------------------
-    def iterate(self, it, timer):
-        p, beta, F, P = self.p, self.beta, self.F, self.P
-        t = time.perf_counter()
-        # S update: (R^T R + beta I) S = R^T W + beta S# + Y1, per frame in closed form
-        rhs = self.Ssh * beta
-        rhs += self.Y1
-        cam = np.matmul(self.R, rhs)
-        del rhs
-        cam[:, :2, :] += self.W
-        cam[:, :2, :] /= 1.0 + beta
-        cam[:, 2, :] /= beta
-        self.S = np.matmul(self.R.transpose(0, 2, 1), cam)
-        t = timer.add('s_update', t)
+    def _update_group_basis(self, k):
+        """Spatial basis of group k follows S by warm-started power iterations, then zeta_s."""
+        group = self._group(k)
+        if group.shape[1] > self.N_s:
+            self.s_bases[k] = gm.subspace_iteration(group, self.s_bases[k],
+                                                    self.p['power_steps'])
 
-        if p['spatial']:
-            self.C_s = gm.c_update(self.Omega_s, self.J_s, self.Y2, p['lambda1'], beta)
-            if p['regroup_every'] and self.K_s > 1 and (it + 1) % p['regroup_every'] == 0:
-                self._regroup_spatial()
-            else:
-                self.s_bases = [gm.subspace_iteration(self._group(k), b, p['power_steps'])
-                                if self._group(k).shape[1] > self.N_s else b
-                                for k, b in enumerate(self.s_bases)]
-            gm.zeta(self.S.reshape(3 * F, P), self.s_edges, self.N_s, p['zeta_weight'],
-                    self.s_bases)
-            self.J_s, nuc_js = gm.singular_value_threshold(self.C_s + self.Y2 / beta,
-                                                           p['lambda3'] / beta)
-        t = timer.add('spatial', t)
+    def _zeta_group(self, k):
+        gm.zeta(self._group(k), self.s_edges[k:k + 2] - self.s_edges[k], self.N_s,
+                self.p['zeta_weight'], self.s_bases[k:k + 1])
 
-        # S# update: SVT of T1(S) - Y1/beta via the F x F Gram matrix, then zeta_t
-        X = np.multiply(self.Y1, -1.0 / beta)
-        X += self.S
-        X = X.reshape(F, 3 * P)
-        G = X @ X.T
+    # sweep 1: S update, spatial branch, Gram of X = S - Y1/beta, data term ----------------------
+    def _update_shapes(self, cols, beta, A):
+        """S[:, :, cols] = A (beta S# + Y1 + R2^T W), A = (R^T P R + beta I)^{-1} per frame."""
+        F, n = self.F, cols.stop - cols.start
+        rhs = np.multiply(self.Ssh[:, :, cols], beta, out=self.buffers[0].view(F, 3, n))
+        rhs += self.Y1[:, :, cols]
+        rhs += np.matmul(self.R2t, self.W[:, :, cols], out=self.buffers[1].view(F, 3, n))
+        np.matmul(A, rhs, out=self.S[:, :, cols])
+
+    def _sharp_input(self, cols, beta):
+        """``X = S - Y1/beta`` of a column block, ``(F, 3, n)`` in the first buffer."""
+        X = np.multiply(self.Y1[:, :, cols], -1.0 / beta,
+                        out=self.buffers[0].view(self.F, 3, cols.stop - cols.start))
+        X += self.S[:, :, cols]
+        return X
+
+    def _gram_and_data(self, cols, beta, G):
+        """Adds the block's ``X X^T`` to G; returns its ``||R2 S - W||^2``."""
+        F, n = self.F, cols.stop - cols.start
+        X = self._sharp_input(cols, beta).reshape(F, 3 * n)
+        G += X @ X.T
+        resid = np.matmul(self.R2, self.S[:, :, cols], out=self.buffers[1].view(F, 2, n))
+        resid -= self.W[:, :, cols]
+        return float(np.vdot(resid, resid))
+
+    def _sweep_shapes(self, beta, regroup, timer, t):
+        """Sweep 1. Returns ``(G: (F, F), ||W - R S||^2, t)``."""
+        F = self.F
+        c = 1.0 / (1.0 + beta)
+        A = self.R.transpose(0, 2, 1) @ (np.array([c, c, 1.0 / beta])[None, :, None] * self.R)
+        spatial = self.p['spatial']
+        G, data = np.zeros((F, F)), 0.0
+        if regroup:
+            for _, cols in self.blocks:
+                self._update_shapes(cols, beta, A)
+            t = timer.add('s_update', t)
+            self._regroup_spatial()
+            t = timer.add('spatial', t)
+        todo = self.blocks
+        while todo:
+            k = todo[0][0]
+            group = [cols for g, cols in todo if g == k]
+            todo = todo[len(group):]
+            if not regroup:
+                for cols in group:
+                    self._update_shapes(cols, beta, A)
+                t = timer.add('s_update', t)
+            if spatial:
+                if not regroup:
+                    self._update_group_basis(k)
+                self._zeta_group(k)
+                t = timer.add('spatial', t)
+            for cols in group:
+                data += self._gram_and_data(cols, beta, G)
+            t = timer.add('svt', t)
+        return G, data, t
+
+    # the S# step: SVT through the smaller Gram, zeta_t ------------------------------------------
+    def _temporal(self, G1, beta, it):
+        """Temporal branch on the Gram ``G1: (F, F)`` of the thresholded S#: returns the
+        block-diagonal zeta_t operator ``B: (F, F)`` (C_t, xi_t, J_t updated)."""
+        p, F = self.p, self.F
+        self.C_t = gm.c_update(self.Omega_t, self.J_t, self.Y3, p['lambda2'], beta)
+        bases = gm.block_bases(G1, self.t_edges, self.N_t)
+        if p['regroup_every'] and self.K_t > 1 and (it + 1) % p['regroup_every'] == 0:
+            A = gm.lrr_affinity(self.C_t, p['sigma_eps'])
+            edges = gm.move_block_boundaries(G1, self.t_edges, bases, A,
+                                             p['affinity_min'], self.N_t + 1)
+            if not np.array_equal(edges, self.t_edges):
+                self.t_edges = edges
+                bases = gm.block_bases(G1, edges, self.N_t)
+        B = np.eye(F)
+        for k, (v, _) in enumerate(bases):
+            r = slice(self.t_edges[k], self.t_edges[k + 1])
+            if v.shape[1] < r.stop - r.start:
+                B[r, r] -= p['zeta_weight'] * (np.eye(r.stop - r.start) - v @ v.T)
+        self.J_t, self.nuc_jt = gm.singular_value_threshold(self.C_t + self.Y3 / beta,
+                                                            p['lambda4'] / beta)
+        return B
+
+    def _shrink(self, G, beta):
+        """Eigenvectors of a Gram matrix and the SVT factors ``max(s - gamma/beta, 0) / s``."""
         vals, vecs = np.linalg.eigh(G)
         sv = np.sqrt(np.maximum(vals, 0.0))
         shrink = np.where(sv > 0, np.maximum(sv - self.gamma / beta, 0.0) / np.where(
             sv > 0, sv, 1.0), 0.0)
+        return vecs, shrink
+
+    def _sharp_operator(self, G, beta, it):
+        """Wide case (F <= 3P): ``op: (F, F)`` with ``S# = op X`` and the Gram of S#."""
+        vecs, shrink = self._shrink(G, beta)
         M = (vecs * shrink) @ vecs.T
         G1 = M @ G @ M
-        t = timer.add('svt', t)
         op = M
-        if p['temporal']:
-            self.C_t = gm.c_update(self.Omega_t, self.J_t, self.Y3, p['lambda2'], beta)
-            bases = gm.block_bases(G1, self.t_edges, self.N_t)
-            if p['regroup_every'] and self.K_t > 1 and (it + 1) % p['regroup_every'] == 0:
-                A = gm.lrr_affinity(self.C_t, p['sigma_eps'])
-                edges = gm.move_block_boundaries(G1, self.t_edges, bases, A,
-                                                 p['affinity_min'], self.N_t + 1)
-                if not np.array_equal(edges, self.t_edges):
-                    self.t_edges = edges
-                    bases = gm.block_bases(G1, edges, self.N_t)
-            B = np.eye(F)
-            for k, (v, _) in enumerate(bases):
-                r = slice(self.t_edges[k], self.t_edges[k + 1])
-                if v.shape[1] < r.stop - r.start:
-                    B[r, r] -= p['zeta_weight'] * (np.eye(r.stop - r.start) - v @ v.T)
+        if self.p['temporal']:
+            B = self._temporal(G1, beta, it)
             op = B @ M
             G1 = B @ G1 @ B.T
             self.t_bases = gm.block_bases(G1, self.t_edges, self.N_t)
-            self.J_t, nuc_jt = gm.singular_value_threshold(self.C_t + self.Y3 / beta,
-                                                           p['lambda4'] / beta)
-        self.Ssh = (op @ X).reshape(F, 3, P)
-        self.G = G1
+        nuclear = float(np.sqrt(np.maximum(np.linalg.eigvalsh(G1), 0.0)).sum())
+        return op, G1, nuclear
+
+    def _sharp_tall(self, X, beta, it):
+        """Tall case (F > 3P): S# of ``X: (F, 3P)`` through the ``3P x 3P`` Gram."""
+        vecs, shrink = self._shrink(X.T @ X, beta)
+        Z = X @ ((vecs * shrink) @ vecs.T)          # = M X
+        G1 = Z @ Z.T
+        if self.p['temporal']:
+            Z = self._temporal(G1, beta, it) @ Z
+            G1 = Z @ Z.T
+            self.t_bases = gm.block_bases(G1, self.t_edges, self.N_t)
+        nuclear = float(np.sqrt(np.maximum(np.linalg.eigvalsh(Z.T @ Z), 0.0)).sum())
+        return Z, G1, nuclear
+
+    # sweep 2: S#, gap and Y1 ---------------------------------------------------------------------
+    def _sweep_multipliers(self, beta, op=None, sharp=None):
+        """``S# = op X`` (or the given ``sharp: (F, 3P)``), ``Y1 += beta (S# - S)``; returns
+        ``max |S# - S|``."""
+        F, gap = self.F, 0.0
+        for _, cols in self.blocks:
+            n = cols.stop - cols.start
+            if sharp is None:
+                X = self._sharp_input(cols, beta).reshape(F, 3 * n)
+                new = np.matmul(op, X, out=self.buffers[2].view(F, 3, n).reshape(F, 3 * n))
+                new = new.reshape(F, 3, n)
+            else:
+                new = sharp.reshape(F, 3, self.P)[:, :, cols]
+            diff = np.subtract(new, self.S[:, :, cols], out=self.buffers[1].view(F, 3, n))
+            gap = max(gap, float(diff.max()), -float(diff.min()))
+            diff *= beta
+            self.Y1[:, :, cols] += diff
+            self.Ssh[:, :, cols] = new
+        return gap
+
+    # one iteration -------------------------------------------------------------------------
+    def iterate(self, it, timer):
+        p, beta = self.p, self.beta
+        t = time.perf_counter()
+        regroup = bool(p['spatial'] and p['regroup_every'] and self.K_s > 1
+                       and (it + 1) % p['regroup_every'] == 0)
+        if p['spatial']:
+            self.C_s = gm.c_update(self.Omega_s, self.J_s, self.Y2, p['lambda1'], beta)
+        G, data, t = self._sweep_shapes(beta, regroup, timer, t)
+        if p['spatial']:
+            self.J_s, nuc_js = gm.singular_value_threshold(self.C_s + self.Y2 / beta,
+                                                           p['lambda3'] / beta)
+        t = timer.add('spatial', t)
+
+        # S# update: SVT of T1(S) - Y1/beta via the smaller Gram matrix, then zeta_t
+        if self.tall:
+            X = self._sharp_input(slice(0, self.P), beta).reshape(self.F, 3 * self.P)
+            sharp, G1, nuclear = self._sharp_tall(X, beta, it)
+            op = None
+        else:
+            op, G1, nuclear = self._sharp_operator(G, beta, it)
+            sharp = None
         t = timer.add('temporal', t)
 
-        # Omega from the new Grassmann points
         obj = 0.0
         if p['spatial']:
             self.Omega_s = self._omega_s()
@@ -609,13 +757,9 @@ class _State:
                 gm.block_cross(G1, self.t_edges, self.t_bases),
                 [v.shape[1] for v, _ in self.t_bases], p['delta'])
             obj += (p['lambda2'] * gm.embedding_error(self.C_t, self.Omega_t)
-                    + p['lambda4'] * nuc_jt)
+                    + p['lambda4'] * self.nuc_jt)
 
-        # multipliers, penalty, objective and gaps (in place: these are (F, 3, P) arrays)
-        diff = np.subtract(self.Ssh, self.S)
-        gap_sh = float(max(diff.max(), -diff.min()))
-        diff *= beta
-        self.Y1 += diff
+        gap_sh = self._sweep_multipliers(beta, op, sharp)
         gap_s = gap_t = 0.0
         if p['spatial']:
             self.Y2 += beta * (self.C_s - self.J_s)
@@ -623,10 +767,7 @@ class _State:
         if p['temporal']:
             self.Y3 += beta * (self.C_t - self.J_t)
             gap_t = float(np.abs(self.C_t - self.J_t).max())
-        resid = np.matmul(self.R[:, :2, :], self.S)
-        resid -= self.W
-        obj += 0.5 * float(np.vdot(resid, resid))
-        obj += self.gamma * float(np.sqrt(np.maximum(np.linalg.eigvalsh(G1), 0.0)).sum())
+        obj += 0.5 * data + self.gamma * nuclear
         self.beta_reached_max = beta >= p['beta_max']
         self.beta = min(p['rho'] * beta, p['beta_max'])
         timer.add('multipliers', t)
