@@ -338,9 +338,9 @@ class GrassmannNRSfM:
             raise InvalidInputError(f'init must be a WarmStart or None; got {type(init).__name__}')
         known, groups = self._check_init(init, F, P)
 
-        Wc, translation = centre(W)
-        scale = track_scale(Wc)
-        Wn = Wc / scale
+        Wn, translation = centre(W)
+        scale = track_scale(Wn)
+        Wn /= scale                                     # centred, unit RMS
         report = SolverReport()
         t = time.perf_counter()
         R, report.K_rot = self._rotations(Wn, init, known, p)
@@ -360,6 +360,7 @@ class GrassmannNRSfM:
         report.warm_started_frames = int(known.sum()) if init.S is not None else 0
         state = _State(Wn, R, S0, p, K_s, K_t, N_s, N_t, gamma, groups,
                        warm=init.S is not None)
+        del S0                                          # rebuilt if the run diverges
         t = timer.add('initialisation', t)
 
         reason, converged = 'max_iter reached', False
@@ -369,7 +370,7 @@ class GrassmannNRSfM:
             report.objective.append(obj)
             report.gaps.append(gaps)
             if not (np.isfinite(obj) and np.all(np.isfinite(gaps))):
-                state.fall_back(S0)
+                state.fall_back(self._initial_shapes(Wn, R, init, known, scale))
                 report.fallback = (f'non-finite objective/gap at iteration {it + 1}; '
                                    'returned the initial shapes')
                 reason = 'diverged'
@@ -385,11 +386,11 @@ class GrassmannNRSfM:
         report.reason, report.converged = reason, converged
         report.regrouped_points = state.moves
 
-        S_world = state.S_world_original_order()
-        S_cam = from_frames(R @ S_world) * scale
-        resid = Wc - from_frames(S_cam.reshape(F, 3, P)[:, :2, :])
-        report.reprojection_rms = float(np.sqrt(np.mean(resid ** 2)))
-        report.reprojection_relative = report.reprojection_rms / scale
+        report.reprojection_relative = float(np.sqrt(state.data_error() / (2 * F * P)))
+        report.reprojection_rms = report.reprojection_relative * scale
+        S_cam = np.matmul(R, state.S_world_original_order())
+        S_cam *= scale
+        S_cam = from_frames(S_cam)
         timer.add('shape', t)
         report.seconds = dict(timer.seconds, total=time.perf_counter() - t_start)
         return NRSfMResult(S=S_cam, R=R, translation=translation,
@@ -482,6 +483,13 @@ def column_blocks(edges, width):
     return out
 
 
+def blocked_view(flat, F, rows, cols):
+    """The contiguous ``(F, rows, n)`` piece of a block-major ``flat`` buffer for ``cols``."""
+    n = cols.stop - cols.start
+    start = F * rows * cols.start
+    return flat[start:start + F * rows * n].reshape(F, rows, n)
+
+
 class _Buffer:
     """One preallocated flat float64 buffer handing out contiguous ``(F, rows, n)`` views."""
 
@@ -515,6 +523,7 @@ class _State:
         self.beta = p['warm_beta0'] if warm else p['beta0']
         self.beta_reached_max = False
         self.moves = 0
+        self.data = None                    # ||Wn - R2 S||^2 of the last sweep
         labels = groups if groups is not None else (
             gm.initial_groups(S0.reshape(3 * F, P), K_s, p['random_state'])
             if p['spatial'] else np.zeros(P, dtype=np.int64))
@@ -532,6 +541,7 @@ class _State:
         self.width = P if self.tall else max(1, min(P, BLOCK_BYTES // (24 * F)))
         self.blocks = column_blocks(self.s_edges, self.width)
         self.buffers = [_Buffer(3 * F * self.width) for _ in range(3)]
+        self.X = np.empty(3 * F * P)        # X = S - Y1/beta, block-major (see blocked_view)
         self.s_bases = self._spatial_bases_exact()
         self.t_edges = gm.contiguous_blocks(F, K_t)
         X = self.Ssh.reshape(F, -1)
@@ -598,17 +608,13 @@ class _State:
         rhs += np.matmul(self.R2t, self.W[:, :, cols], out=self.buffers[1].view(F, 3, n))
         np.matmul(A, rhs, out=self.S[:, :, cols])
 
-    def _sharp_input(self, cols, beta):
-        """``X = S - Y1/beta`` of a column block, ``(F, 3, n)`` in the first buffer."""
-        X = np.multiply(self.Y1[:, :, cols], -1.0 / beta,
-                        out=self.buffers[0].view(self.F, 3, cols.stop - cols.start))
-        X += self.S[:, :, cols]
-        return X
-
     def _gram_and_data(self, cols, beta, G):
-        """Adds the block's ``X X^T`` to G; returns its ``||R2 S - W||^2``."""
+        """Stores the block's ``X = S - Y1/beta``, adds its ``X X^T`` to G; returns the block's
+        ``||R2 S - W||^2``."""
         F, n = self.F, cols.stop - cols.start
-        X = self._sharp_input(cols, beta).reshape(F, 3 * n)
+        X = np.multiply(self.Y1[:, :, cols], -1.0 / beta, out=blocked_view(self.X, F, 3, cols))
+        X += self.S[:, :, cols]
+        X = X.reshape(F, 3 * n)
         G += X @ X.T
         resid = np.matmul(self.R2, self.S[:, :, cols], out=self.buffers[1].view(F, 2, n))
         resid -= self.W[:, :, cols]
@@ -711,7 +717,7 @@ class _State:
         for _, cols in self.blocks:
             n = cols.stop - cols.start
             if sharp is None:
-                X = self._sharp_input(cols, beta).reshape(F, 3 * n)
+                X = blocked_view(self.X, F, 3, cols).reshape(F, 3 * n)
                 new = np.matmul(op, X, out=self.buffers[2].view(F, 3, n).reshape(F, 3 * n))
                 new = new.reshape(F, 3, n)
             else:
@@ -739,7 +745,7 @@ class _State:
 
         # S# update: SVT of T1(S) - Y1/beta via the smaller Gram matrix, then zeta_t
         if self.tall:
-            X = self._sharp_input(slice(0, self.P), beta).reshape(self.F, 3 * self.P)
+            X = self.X.reshape(self.F, 3 * self.P)
             sharp, G1, nuclear = self._sharp_tall(X, beta, it)
             op = None
         else:
@@ -767,6 +773,7 @@ class _State:
         if p['temporal']:
             self.Y3 += beta * (self.C_t - self.J_t)
             gap_t = float(np.abs(self.C_t - self.J_t).max())
+        self.data = data
         obj += 0.5 * data + self.gamma * nuclear
         self.beta_reached_max = beta >= p['beta_max']
         self.beta = min(p['rho'] * beta, p['beta_max'])
@@ -775,10 +782,22 @@ class _State:
 
     def fall_back(self, S0):
         self.S = np.ascontiguousarray(S0[:, :, self.order])
+        self.data = None
+
+    def data_error(self):
+        """``||Wn - R2 S||^2`` of the current S (from the last sweep unless S was reset)."""
+        if self.data is None:
+            resid = np.matmul(self.R2, self.S)
+            resid -= self.W
+            self.data = float(np.vdot(resid, resid))
+        return self.data
 
     def S_world_original_order(self):
-        out = np.empty_like(self.S)
+        """World-frame S ``(F, 3, P)`` in the input's column order; frees the iteration
+        buffers (the state is spent afterwards)."""
+        out = self.Ssh
         out[:, :, self.order] = self.S
+        self.X = self.Y1 = self.S = self.Ssh = None
         return out
 
     def labels_original_order(self):
