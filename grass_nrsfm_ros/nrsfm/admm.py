@@ -469,6 +469,10 @@ def align_rotations(R_est, R_known, known):
 
 #: bytes of one (F, 3, n) column block in the element-wise sweeps (keeps a block in cache)
 BLOCK_BYTES = 1 << 20
+#: storage of the (F, 3, P) iterates when F * P >= FLOAT32_MIN_SIZE: float32 halves the memory
+#: traffic that bounds an iteration; Grams, eigen/QR steps and sums stay float64
+STORAGE_DTYPE = np.float32
+FLOAT32_MIN_SIZE = 1 << 20
 
 
 def column_blocks(edges, width):
@@ -493,8 +497,8 @@ def blocked_view(flat, F, rows, cols):
 class _Buffer:
     """One preallocated flat float64 buffer handing out contiguous ``(F, rows, n)`` views."""
 
-    def __init__(self, size):
-        self.flat = np.empty(size)
+    def __init__(self, size, dtype=np.float64):
+        self.flat = np.empty(size, dtype=dtype)
 
     def view(self, F, rows, n):
         return self.flat[:F * rows * n].reshape(F, rows, n)
@@ -531,21 +535,24 @@ class _State:
         self.order = np.argsort(labels, kind='stable')
         self.labels = labels[self.order]
         self.s_edges = np.searchsorted(self.labels, np.arange(K_s + 1))
-        self.W = np.ascontiguousarray(Wn.reshape(F, 2, P)[:, :, self.order])
-        self.S = np.ascontiguousarray(S0[:, :, self.order])
+        self.dtype = dt = STORAGE_DTYPE if F * P >= FLOAT32_MIN_SIZE else np.float64
+        self.W = Wn.reshape(F, 2, P)[:, :, self.order].astype(dt)
+        self.S = S0[:, :, self.order].astype(dt)
         self.Ssh = self.S.copy()
         self.Y1 = np.zeros_like(self.S)
-        self.R2 = np.ascontiguousarray(R[:, :2, :])                   # (F, 2, 3) cameras
+        self.R2 = R[:, :2, :].astype(dt)                           # (F, 2, 3) cameras
         self.R2t = np.ascontiguousarray(self.R2.transpose(0, 2, 1))  # (F, 3, 2)
         self.tall = F > 3 * P
         self.width = P if self.tall else max(1, min(P, BLOCK_BYTES // (24 * F)))
         self.blocks = column_blocks(self.s_edges, self.width)
-        self.buffers = [_Buffer(3 * F * self.width) for _ in range(3)]
-        self.X = np.empty(3 * F * P)        # X = S - Y1/beta, block-major (see blocked_view)
+        self.buffers = [_Buffer(3 * F * self.width, dt) for _ in range(3)]
+        self.wide = _Buffer(3 * F * self.width)                    # float64 copy of a block
+        self.X = np.empty(3 * F * P, dtype=dt)   # X = S - Y1/beta, block-major (blocked_view)
         self.s_bases = self._spatial_bases_exact()
         self.t_edges = gm.contiguous_blocks(F, K_t)
-        X = self.Ssh.reshape(F, -1)
-        G = X @ X.T
+        G = np.zeros((F, F))
+        for _, cols in self.blocks:
+            self._add_gram(G, self.Ssh[:, :, cols])
         self.t_bases = gm.block_bases(G, self.t_edges, N_t)
         self.C_s = np.zeros((K_s, K_s))
         self.J_s, self.Y2 = np.zeros_like(self.C_s), np.zeros_like(self.C_s)
@@ -561,7 +568,8 @@ class _State:
         return self.S.reshape(3 * self.F, self.P)[:, self.s_edges[k]:self.s_edges[k + 1]]
 
     def _spatial_bases_exact(self):
-        return [gm.top_subspace(self._group(k), self.N_s)[0] for k in range(self.K_s)]
+        return [gm.top_subspace(self._group(k).astype(np.float64), self.N_s)[0]
+                for k in range(self.K_s)]
 
     def _omega_s(self):
         stacked = np.concatenate(self.s_bases, axis=1)
@@ -571,7 +579,7 @@ class _State:
     def _regroup_spatial(self):
         p = self.p
         A = gm.lrr_affinity(self.C_s, p['sigma_eps'])
-        S2 = self.S.reshape(3 * self.F, self.P)
+        S2 = self.S.reshape(3 * self.F, self.P).astype(np.float64, copy=False)
         new = gm.reassign_by_residual(S2, self.labels, self.s_bases, A, p['affinity_min'],
                                       self.N_s + 1)
         moved = int((new != self.labels).sum())
@@ -603,21 +611,36 @@ class _State:
     def _update_shapes(self, cols, beta, A):
         """S[:, :, cols] = A (beta S# + Y1 + R2^T W), A = (R^T P R + beta I)^{-1} per frame."""
         F, n = self.F, cols.stop - cols.start
-        rhs = np.multiply(self.Ssh[:, :, cols], beta, out=self.buffers[0].view(F, 3, n))
+        rhs = np.multiply(self.Ssh[:, :, cols], self.dtype(beta),
+                          out=self.buffers[0].view(F, 3, n))
         rhs += self.Y1[:, :, cols]
         rhs += np.matmul(self.R2t, self.W[:, :, cols], out=self.buffers[1].view(F, 3, n))
         np.matmul(A, rhs, out=self.S[:, :, cols])
+
+    def _wide(self, block):
+        """``block: (F, r, n)`` as float64 (a view when it already is)."""
+        if block.dtype == np.float64:
+            return block
+        out = self.wide.view(*block.shape)
+        out[...] = block
+        return out
+
+    def _add_gram(self, G, block):
+        """``G += X X^T`` (float64) for a column block ``X: (F, 3, n)``."""
+        X = self._wide(block).reshape(self.F, -1)
+        G += X @ X.T
 
     def _gram_and_data(self, cols, beta, G):
         """Stores the block's ``X = S - Y1/beta``, adds its ``X X^T`` to G; returns the block's
         ``||R2 S - W||^2``."""
         F, n = self.F, cols.stop - cols.start
-        X = np.multiply(self.Y1[:, :, cols], -1.0 / beta, out=blocked_view(self.X, F, 3, cols))
+        X = np.multiply(self.Y1[:, :, cols], self.dtype(-1.0 / beta),
+                        out=blocked_view(self.X, F, 3, cols))
         X += self.S[:, :, cols]
-        X = X.reshape(F, 3 * n)
-        G += X @ X.T
+        self._add_gram(G, X)
         resid = np.matmul(self.R2, self.S[:, :, cols], out=self.buffers[1].view(F, 2, n))
         resid -= self.W[:, :, cols]
+        resid = self._wide(resid)
         return float(np.vdot(resid, resid))
 
     def _sweep_shapes(self, beta, regroup, timer, t):
@@ -625,6 +648,7 @@ class _State:
         F = self.F
         c = 1.0 / (1.0 + beta)
         A = self.R.transpose(0, 2, 1) @ (np.array([c, c, 1.0 / beta])[None, :, None] * self.R)
+        A = A.astype(self.dtype)
         spatial = self.p['spatial']
         G, data = np.zeros((F, F)), 0.0
         if regroup:
@@ -714,6 +738,7 @@ class _State:
         """``S# = op X`` (or the given ``sharp: (F, 3P)``), ``Y1 += beta (S# - S)``; returns
         ``max |S# - S|``."""
         F, gap = self.F, 0.0
+        op = None if op is None else op.astype(self.dtype)
         for _, cols in self.blocks:
             n = cols.stop - cols.start
             if sharp is None:
@@ -724,7 +749,7 @@ class _State:
                 new = sharp.reshape(F, 3, self.P)[:, :, cols]
             diff = np.subtract(new, self.S[:, :, cols], out=self.buffers[1].view(F, 3, n))
             gap = max(gap, float(diff.max()), -float(diff.min()))
-            diff *= beta
+            diff *= self.dtype(beta)
             self.Y1[:, :, cols] += diff
             self.Ssh[:, :, cols] = new
         return gap
@@ -745,7 +770,7 @@ class _State:
 
         # S# update: SVT of T1(S) - Y1/beta via the smaller Gram matrix, then zeta_t
         if self.tall:
-            X = self.X.reshape(self.F, 3 * self.P)
+            X = self.X.reshape(self.F, 3 * self.P).astype(np.float64)
             sharp, G1, nuclear = self._sharp_tall(X, beta, it)
             op = None
         else:
@@ -781,13 +806,13 @@ class _State:
         return obj, (gap_sh, gap_s, gap_t)
 
     def fall_back(self, S0):
-        self.S = np.ascontiguousarray(S0[:, :, self.order])
+        self.S = S0[:, :, self.order].astype(self.dtype)
         self.data = None
 
     def data_error(self):
         """``||Wn - R2 S||^2`` of the current S (from the last sweep unless S was reset)."""
         if self.data is None:
-            resid = np.matmul(self.R2, self.S)
+            resid = np.matmul(self.R2, self.S, dtype=np.float64)
             resid -= self.W
             self.data = float(np.vdot(resid, resid))
         return self.data
