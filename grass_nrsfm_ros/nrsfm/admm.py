@@ -541,7 +541,8 @@ class _State:
         self.Ssh = self.S.copy()
         self.Y1 = np.zeros_like(self.S)
         self.R2 = R[:, :2, :].astype(dt)                           # (F, 2, 3) cameras
-        self.R2t = np.ascontiguousarray(self.R2.transpose(0, 2, 1))  # (F, 3, 2)
+        self.Rs = R.astype(dt)                                     # (F, 3, 3)
+        self.Rt = np.ascontiguousarray(self.Rs.transpose(0, 2, 1))
         self.tall = F > 3 * P
         self.width = P if self.tall else max(1, min(P, BLOCK_BYTES // (24 * F)))
         self.blocks = column_blocks(self.s_edges, self.width)
@@ -608,14 +609,19 @@ class _State:
                 self.p['zeta_weight'], self.s_bases[k:k + 1])
 
     # sweep 1: S update, spatial branch, Gram of X = S - Y1/beta, data term ----------------------
-    def _update_shapes(self, cols, beta, A):
-        """S[:, :, cols] = A (beta S# + Y1 + R2^T W), A = (R^T P R + beta I)^{-1} per frame."""
+    def _update_shapes(self, cols, beta, scale):
+        """S[:, :, cols] from ``(R^T P R + beta I) S = R^T W + beta S# + Y1`` per frame in
+        closed form: ``S = R^T diag(scale) (R (beta S# + Y1) + [W; 0])``, ``scale = (1/(1+beta),
+        1/(1+beta), 1/beta)``. The depth row never mixes with W, so float32 storage does not
+        leak W's rounding into depth at small beta."""
         F, n = self.F, cols.stop - cols.start
         rhs = np.multiply(self.Ssh[:, :, cols], self.dtype(beta),
                           out=self.buffers[0].view(F, 3, n))
         rhs += self.Y1[:, :, cols]
-        rhs += np.matmul(self.R2t, self.W[:, :, cols], out=self.buffers[1].view(F, 3, n))
-        np.matmul(A, rhs, out=self.S[:, :, cols])
+        cam = np.matmul(self.Rs, rhs, out=self.buffers[1].view(F, 3, n))
+        cam[:, :2, :] += self.W[:, :, cols]
+        cam *= scale
+        np.matmul(self.Rt, cam, out=self.S[:, :, cols])
 
     def _wide(self, block):
         """``block: (F, r, n)`` as float64 (a view when it already is)."""
@@ -647,13 +653,12 @@ class _State:
         """Sweep 1. Returns ``(G: (F, F), ||W - R S||^2, t)``."""
         F = self.F
         c = 1.0 / (1.0 + beta)
-        A = self.R.transpose(0, 2, 1) @ (np.array([c, c, 1.0 / beta])[None, :, None] * self.R)
-        A = A.astype(self.dtype)
+        scale = np.array([c, c, 1.0 / beta], dtype=self.dtype)[None, :, None]
         spatial = self.p['spatial']
         G, data = np.zeros((F, F)), 0.0
         if regroup:
             for _, cols in self.blocks:
-                self._update_shapes(cols, beta, A)
+                self._update_shapes(cols, beta, scale)
             t = timer.add('s_update', t)
             self._regroup_spatial()
             t = timer.add('spatial', t)
@@ -664,7 +669,7 @@ class _State:
             todo = todo[len(group):]
             if not regroup:
                 for cols in group:
-                    self._update_shapes(cols, beta, A)
+                    self._update_shapes(cols, beta, scale)
                 t = timer.add('s_update', t)
             if spatial:
                 if not regroup:
