@@ -40,6 +40,15 @@ def run_worker(W_path, method, timeout):
     return json.loads(proc.stdout.strip().splitlines()[-1]), None
 
 
+def cpu_per_iteration(row):
+    """CPU seconds per ADMM iteration: the solve's CPU time times the shape step's share of the
+    wall time, over the iterations (None for methods without iterations)."""
+    it = row.get('iterations')
+    if not it or row.get('seconds_shape') is None:
+        return None
+    return row['seconds_cpu'] * row['seconds_shape'] / max(row['seconds_wall'], 1e-9) / it
+
+
 def exponents(rows):
     """Growth exponents of CPU time and of extra memory: per method, per sweep and fixed size."""
     out = []
@@ -52,6 +61,8 @@ def exponents(rows):
         out.append({'method': method, 'against': sweep,
                     'fixed': {'F' if sweep == 'P' else 'P': fixed}, 'points': len(sel),
                     'time_exponent': common.loglog_slope(x, [r['seconds_cpu'] for r in sel]),
+                    'iteration_time_exponent': common.loglog_slope(
+                        x, [cpu_per_iteration(r) or np.nan for r in sel]),
                     'memory_exponent': common.loglog_slope(
                         x, [r['solve_extra_mb'] for r in sel])})
     return out
@@ -120,8 +131,7 @@ def table(rows, exps):
              'SVD(S#) s | iter/SVD (wall) | iter/SVD (CPU) |', '|' + '---|' * 12]
     for r in rows:
         it = r.get('iterations')
-        per_it = (r['seconds_cpu'] * r['seconds_shape'] / max(r['seconds_wall'], 1e-9) / it
-                  if it else None)
+        per_it = cpu_per_iteration(r)
 
         def fmt(x, f='{:.2f}'):
             return '' if x is None else f.format(x)
@@ -133,15 +143,18 @@ def table(rows, exps):
                      f"{fmt(r.get('iteration_over_svd'), '{:.2f}')} | "
                      f"{fmt(r.get('iteration_over_svd_cpu'), '{:.2f}')} |")
     for e in exps:
+        it_exp = e.get('iteration_time_exponent')
         lines.append(f"\n{e['method']}: against {e['against']} at {e['fixed']}: time exponent "
-                     f"{e['time_exponent']:.2f}, memory exponent "
+                     f"{e['time_exponent']:.2f} (per iteration "
+                     f"{float('nan') if it_exp is None else it_exp:.2f}), memory exponent "
                      f"{(e['memory_exponent'] or float('nan')):.2f} ({e['points']} points)")
     return '\n'.join(lines)
 
 
 def main(argv=None):
-    """``python -m bench.scale [--methods ours] [--P 1000 10000 ...] [--F 30 100]``: the P
-    sweeps only, written to ``<out>/scale_sweep.json`` and printed as a table."""
+    """``python -m bench.scale [--methods ours] [--P 1000 10000 ...] [--F 30 100]
+    [--rows JSON]``: the P sweeps only, written to ``<out>/scale_sweep.json`` and printed as a
+    table (``--rows``: re-print the table of an earlier result without solving)."""
     import argparse
     parser = argparse.ArgumentParser(prog='python -m bench.scale', description=main.__doc__)
     parser.add_argument('--methods', nargs='+', default=['ours'], choices=METHODS)
@@ -149,7 +162,12 @@ def main(argv=None):
     parser.add_argument('--F', nargs='+', type=int, default=[30, 100])
     parser.add_argument('--timeout', type=int, default=1800)
     parser.add_argument('--out', help='results folder (default bench/results)')
+    parser.add_argument('--rows', help='an earlier scale_sweep.json to re-print')
     args = parser.parse_args(argv)
+    if args.rows:
+        rows = json.loads(Path(args.rows).read_text())['rows']
+        print(table(rows, exponents(rows)))
+        return 0
     cases = [('P', F, P) for F in args.F for P in args.P]
     rows, skipped = run_cases(cases, args.methods, args.timeout)
     exps = exponents(rows)

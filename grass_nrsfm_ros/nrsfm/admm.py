@@ -32,7 +32,13 @@ per-frame e3D (metrics.e3d). See the report in the branch history for the tables
   (``X' = V diag(max(s - tau, 0)/s) V^T X``). The temporal zeta (rank ``N_t`` per contiguous
   frame block) is another ``F x F`` operator on the same rows, so S# step + zeta_t cost one
   Gram and one ``F x F`` product. Temporal Grassmann bases are never formed: ``Psi_k^T Psi_l``
-  comes from blocks of the Gram matrix.
+  comes from blocks of the Gram matrix. Long sparse sequences (``F > 3P``) threshold through
+  the ``3P x 3P`` Gram instead (drink, F = 1102: 66 s -> 12 s of CPU, e3D equal to 1e-9).
+* Iteration layout (speed): two sweeps over cache-sized column blocks per iteration (see
+  ``_State``), no ``(F, 3, P)`` temporaries; dense problems (``F * P >= 2^20``) store the
+  ``(F, 3, P)`` iterates as float32 (the sweeps are memory-bound) with float64 Grams, eigen/QR
+  steps and sums. float32 moves S by ~4e-5 of max|S| on the 28,880-point face (e3D 7e-8) and
+  puts a ~1e-7 floor under the S# gap, so ``eps`` below that cannot stop such runs.
 * Omega: projection kernel ``||Psi_i^T Psi_j||_F^2`` + ``delta * tr(Omega)/K * I``
   (``delta = 1e-8``). Only ``L L^T = Omega`` enters the C update, so no Cholesky is computed.
 * C: supplementary's row convention; closed form ``(2 lam Omega + beta J - Y)(2 lam Omega +
@@ -87,10 +93,11 @@ the paper's noise level: the rank-N zeta projections denoise. Choices behind tha
 Sparse mocap (rotations from estimate_rotations, K_rot='auto'; e3D none / temporal = both):
 drink 0.0133 / 0.0078, pickup 0.0260 / 0.0196, yoga 0.0208 / 0.0178, dance 0.1241 / 0.1241,
 Torresani face 0.0168 / 0.0159, shark 0.1175 / 0.1177 (spatial auto-off there, see above).
-Speed: 99 x 28,880 face, both branches: 115 iterations, 149 s CPU / 141 s wall with 2 BLAS
-threads on a 2-core machine shared with other jobs (load 3-6); the S# Gram (F x F) and its
-product dominate, then the spatial power iterations. The 60 s target was not verified on an
-idle machine.
+Speed (99 x 28,880 face, both branches, 115 iterations, 1 BLAS thread, 2-core machine shared
+with other jobs at load 1-4; CPU seconds): before the block sweeps 45.3 s (rotation 3.5,
+initialisation 1.7, S update 8.6, spatial 6.6, S# Gram 5.7, zeta_t/S# 8.0, multipliers and
+objective 11.1); after SPEED_AFTER. Memory: O(F P), nothing P x P (bench/scale.py measures both;
+``python -m bench.scale``).
 """
 import inspect
 import time
