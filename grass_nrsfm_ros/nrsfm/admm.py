@@ -177,11 +177,11 @@ def _positive(name, value, allow_zero=False):
     return float(value)
 
 
-#: BLAS threads during the rotation step and the ADMM iterations (None: leave as set). Both make
-#: thousands of small BLAS calls; with 2 OpenBLAS threads on the shared 2-core machine the
-#: 99 x 28,880 face took 202 s CPU / 180 s wall (rotation alone 49 s) against 31 s with 1, and
-#: the thread count changed the rotation step's rounding (e3D 0.0476 vs 0.0461).
-ITERATION_BLAS_THREADS = 1
+#: BLAS threads inside fit (None: leave as set). The rotation step, the initialisation and the
+#: iterations make thousands of small BLAS calls; with 2 OpenBLAS threads on the shared 2-core
+#: machine the 99 x 28,880 face took 202 s CPU / 180 s wall (rotation alone 49 s) against 31 s
+#: with 1, and the thread count changed the rotation step's rounding (e3D 0.0476 vs 0.0461).
+BLAS_THREADS = 1
 
 
 def _blas_threads(n):
@@ -355,6 +355,10 @@ class GrassmannNRSfM:
     def fit(self, W, init=None, progress=None):
         """Reconstruct ``W: (2F, P)``. ``init``: optional :class:`WarmStart`; ``progress``:
         optional ``callback(iteration, report)`` called after every iteration."""
+        with _blas_threads(BLAS_THREADS):
+            return self._fit(W, init, progress)
+
+    def _fit(self, W, init, progress):
         t_start = time.perf_counter()
         timer = _Timer()
         p = self._validated()
@@ -370,8 +374,7 @@ class GrassmannNRSfM:
         Wn /= scale                                     # centred, unit RMS
         report = SolverReport()
         t = time.perf_counter()
-        with _blas_threads(ITERATION_BLAS_THREADS):
-            R, report.K_rot = self._rotations(Wn, init, known, p)
+        R, report.K_rot = self._rotations(Wn, init, known, p)
         t = timer.add('rotation', t)
 
         K_s, K_t, N_s, N_t = self._sizes(p, F, P, groups)
@@ -392,26 +395,25 @@ class GrassmannNRSfM:
         t = timer.add('initialisation', t)
 
         reason, converged = 'max_iter reached', False
-        with _blas_threads(ITERATION_BLAS_THREADS):
-            for it in range(p['max_iter']):
-                obj, gaps = state.iterate(it, timer)
-                report.iterations = it + 1
-                report.objective.append(obj)
-                report.gaps.append(gaps)
-                if not (np.isfinite(obj) and np.all(np.isfinite(gaps))):
-                    state.fall_back(self._initial_shapes(Wn, R, init, known, scale))
-                    report.fallback = (f'non-finite objective/gap at iteration {it + 1}; '
-                                       'returned the initial shapes')
-                    reason = 'diverged'
-                    break
-                if progress is not None:
-                    progress(it + 1, report)
-                if max(gaps) < p['eps']:
-                    reason, converged = 'all constraint gaps below eps', True
-                    break
-                if state.beta_reached_max:
-                    reason, converged = 'beta reached beta_max', True
-                    break
+        for it in range(p['max_iter']):
+            obj, gaps = state.iterate(it, timer)
+            report.iterations = it + 1
+            report.objective.append(obj)
+            report.gaps.append(gaps)
+            if not (np.isfinite(obj) and np.all(np.isfinite(gaps))):
+                state.fall_back(self._initial_shapes(Wn, R, init, known, scale))
+                report.fallback = (f'non-finite objective/gap at iteration {it + 1}; '
+                                   'returned the initial shapes')
+                reason = 'diverged'
+                break
+            if progress is not None:
+                progress(it + 1, report)
+            if max(gaps) < p['eps']:
+                reason, converged = 'all constraint gaps below eps', True
+                break
+            if state.beta_reached_max:
+                reason, converged = 'beta reached beta_max', True
+                break
         report.reason, report.converged = reason, converged
         report.regrouped_points = state.moves
 
