@@ -96,8 +96,15 @@ Torresani face 0.0168 / 0.0159, shark 0.1175 / 0.1177 (spatial auto-off there, s
 Speed (99 x 28,880 face, both branches, 115 iterations, 1 BLAS thread, 2-core machine shared
 with other jobs at load 1-4; CPU seconds): before the block sweeps 45.3 s (rotation 3.5,
 initialisation 1.7, S update 8.6, spatial 6.6, S# Gram 5.7, zeta_t/S# 8.0, multipliers and
-objective 11.1); after SPEED_AFTER. Memory: O(F P), nothing P x P (bench/scale.py measures both;
-``python -m bench.scale``).
+objective 11.1; base measured again back to back: 42.0 s CPU / 47.2 s wall); after the block
+sweeps, float32 storage, the 3P-side SVT and the Gram SVD of W in the rotation step: 31.1 s CPU
+/ 31.3 s wall (rotation 2.1, initialisation 1.2, S update 6.2, spatial 6.2, S# Gram + data
+term 8.0, zeta_t 0.2, S#/multipliers 7.1), e3D 0.046091 -> 0.046086 (the rotation step's Gram
+SVD; with its SVD the iterations alone match to 1e-11 in float64). The BLAS thread count is
+pinned to 1 inside fit (BLAS_THREADS): with 2 threads the same run took 180 s wall. Per
+iteration, CPU time grows linearly in P (exponent 0.92-0.96 for P = 1k..70k at F = 30, 100)
+and costs 0.14-0.6 of one economy SVD of S# (F = 100). Memory: O(F P), nothing P x P; peak
+RSS above the loaded W for the face 687 MB -> 333 MB (``python -m bench.scale``).
 """
 import inspect
 import time
