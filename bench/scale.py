@@ -40,6 +40,15 @@ def run_worker(W_path, method, timeout):
     return json.loads(proc.stdout.strip().splitlines()[-1]), None
 
 
+def cpu_per_iteration(row):
+    """CPU seconds per ADMM iteration: the solve's CPU time times the shape step's share of the
+    wall time, over the iterations (None for methods without iterations)."""
+    it = row.get('iterations')
+    if not it or row.get('seconds_shape') is None:
+        return None
+    return row['seconds_cpu'] * row['seconds_shape'] / max(row['seconds_wall'], 1e-9) / it
+
+
 def exponents(rows):
     """Growth exponents of CPU time and of extra memory: per method, per sweep and fixed size."""
     out = []
@@ -52,6 +61,8 @@ def exponents(rows):
         out.append({'method': method, 'against': sweep,
                     'fixed': {'F' if sweep == 'P' else 'P': fixed}, 'points': len(sel),
                     'time_exponent': common.loglog_slope(x, [r['seconds_cpu'] for r in sel]),
+                    'iteration_time_exponent': common.loglog_slope(
+                        x, [cpu_per_iteration(r) or np.nan for r in sel]),
                     'memory_exponent': common.loglog_slope(
                         x, [r['solve_extra_mb'] for r in sel])})
     return out
@@ -75,13 +86,12 @@ def plots(rows, out_dir):
     return names
 
 
-def run(mode):
-    timeout = mode.pick(120, 300, 1800)
+def run_cases(cases, methods, timeout):
+    """Solve each ``(sweep, F, P)`` case with each method in a fresh process; returns
+    ``(rows, skipped)``."""
     rows, skipped = [], []
-    methods = [m for m in METHODS if not common.missing(m)]
-    skipped += [{'method': m, 'why': common.missing(m)} for m in METHODS if m not in methods]
     with tempfile.TemporaryDirectory(prefix='bench_scale_') as tmp:
-        for sweep, F, P in grid(mode):
+        for sweep, F, P in cases:
             W, _ = common.synthetic('bending', F, P)
             W_path = Path(tmp) / f'W_{F}_{P}.npy'
             np.save(W_path, W)
@@ -93,11 +103,81 @@ def run(mode):
                     skipped.append({'method': method, 'F': F, 'P': P, 'why': why})
                 else:
                     rows.append({'sweep': sweep, **row})
-    out = {'rows': rows, 'skipped': skipped, 'exponents': exponents(rows),
-           'notes': ['each case runs in a fresh process; solve_extra_mb = peak RSS after the '
-                     'solve minus peak RSS after loading W (0 when the solve stays below it)',
-                     'iteration_over_svd: seconds per ADMM iteration / one economy SVD of the '
-                     'F x 3P matrix S#']}
+    return rows, skipped
+
+
+NOTES = ['each case runs in a fresh process; solve_extra_mb = peak RSS after the solve minus '
+         'peak RSS after loading W (0 when the solve stays below it)',
+         'iteration_over_svd: wall seconds per ADMM iteration / wall seconds of one economy SVD '
+         'of the F x 3P matrix S# (best of 3); iteration_over_svd_cpu: the same in CPU seconds '
+         '(the solve CPU time scaled by its shape-step share of the wall time)']
+
+
+def run(mode):
+    timeout = mode.pick(120, 300, 1800)
+    methods = [m for m in METHODS if not common.missing(m)]
+    skipped = [{'method': m, 'why': common.missing(m)} for m in METHODS if m not in methods]
+    rows, more = run_cases(grid(mode), methods, timeout)
+    out = {'rows': rows, 'skipped': skipped + more, 'exponents': exponents(rows),
+           'notes': NOTES}
     if mode.name != 'smoke':
         out['plots'] = plots(rows, mode.out_dir)
     return out
+
+
+def table(rows, exps):
+    """Markdown table of the rows and the P exponents."""
+    lines = ['| method | F | P | iters | CPU s | wall s | peak MB | extra MB | CPU s/iter | '
+             'SVD(S#) s | iter/SVD (wall) | iter/SVD (CPU) |', '|' + '---|' * 12]
+    for r in rows:
+        it = r.get('iterations')
+        per_it = cpu_per_iteration(r)
+
+        def fmt(x, f='{:.2f}'):
+            return '' if x is None else f.format(x)
+        lines.append(f"| {r['method']} | {r['F']} | {r['P']} | {fmt(it, '{}')} | "
+                     f"{r['seconds_cpu']:.1f} | {r['seconds_wall']:.1f} | "
+                     f"{r['rss_peak_mb']:.0f} | {r['solve_extra_mb']:.0f} | "
+                     f"{fmt(per_it, '{:.3f}')} | "
+                     f"{fmt(r.get('svd_S_sharp_seconds'), '{:.3f}')} | "
+                     f"{fmt(r.get('iteration_over_svd'), '{:.2f}')} | "
+                     f"{fmt(r.get('iteration_over_svd_cpu'), '{:.2f}')} |")
+    for e in exps:
+        it_exp = e.get('iteration_time_exponent')
+        lines.append(f"\n{e['method']}: against {e['against']} at {e['fixed']}: time exponent "
+                     f"{e['time_exponent']:.2f} (per iteration "
+                     f"{float('nan') if it_exp is None else it_exp:.2f}), memory exponent "
+                     f"{(e['memory_exponent'] or float('nan')):.2f} ({e['points']} points)")
+    return '\n'.join(lines)
+
+
+def main(argv=None):
+    """``python -m bench.scale [--methods ours] [--P 1000 10000 ...] [--F 30 100]
+    [--rows JSON]``: the P sweeps only, written to ``<out>/scale_sweep.json`` and printed as a
+    table (``--rows``: re-print the table of an earlier result without solving)."""
+    import argparse
+    parser = argparse.ArgumentParser(prog='python -m bench.scale', description=main.__doc__)
+    parser.add_argument('--methods', nargs='+', default=['ours'], choices=METHODS)
+    parser.add_argument('--P', nargs='+', type=int, default=[1000, 10000, 30000, 70000])
+    parser.add_argument('--F', nargs='+', type=int, default=[30, 100])
+    parser.add_argument('--timeout', type=int, default=1800)
+    parser.add_argument('--out', help='results folder (default bench/results)')
+    parser.add_argument('--rows', help='an earlier scale_sweep.json to re-print')
+    args = parser.parse_args(argv)
+    if args.rows:
+        rows = json.loads(Path(args.rows).read_text())['rows']
+        print(table(rows, exponents(rows)))
+        return 0
+    cases = [('P', F, P) for F in args.F for P in args.P]
+    rows, skipped = run_cases(cases, args.methods, args.timeout)
+    exps = exponents(rows)
+    mode = common.Mode('full', args.out)
+    path = common.write_result(mode, 'scale_sweep', {'rows': rows, 'skipped': skipped,
+                                                     'exponents': exps, 'notes': NOTES})
+    print(table(rows, exps))
+    print(f'-> {path}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -32,7 +32,13 @@ per-frame e3D (metrics.e3d). See the report in the branch history for the tables
   (``X' = V diag(max(s - tau, 0)/s) V^T X``). The temporal zeta (rank ``N_t`` per contiguous
   frame block) is another ``F x F`` operator on the same rows, so S# step + zeta_t cost one
   Gram and one ``F x F`` product. Temporal Grassmann bases are never formed: ``Psi_k^T Psi_l``
-  comes from blocks of the Gram matrix.
+  comes from blocks of the Gram matrix. Long sparse sequences (``F > 3P``) threshold through
+  the ``3P x 3P`` Gram instead (drink, F = 1102: 66 s -> 12 s of CPU, e3D equal to 1e-9).
+* Iteration layout (speed): two sweeps over cache-sized column blocks per iteration (see
+  ``_State``), no ``(F, 3, P)`` temporaries; dense problems (``F * P >= 2^20``) store the
+  ``(F, 3, P)`` iterates as float32 (the sweeps are memory-bound) with float64 Grams, eigen/QR
+  steps and sums. float32 moves S by ~4e-5 of max|S| on the 28,880-point face (e3D 7e-8) and
+  puts a ~1e-7 floor under the S# gap, so ``eps`` below that cannot stop such runs.
 * Omega: projection kernel ``||Psi_i^T Psi_j||_F^2`` + ``delta * tr(Omega)/K * I``
   (``delta = 1e-8``). Only ``L L^T = Omega`` enters the C update, so no Cholesky is computed.
 * C: supplementary's row convention; closed form ``(2 lam Omega + beta J - Y)(2 lam Omega +
@@ -134,10 +140,18 @@ Diagnosis. Shark: W has rank 5; K_rot = 2 rotations are exact (residual 8.6e-9; 
   rank 2 from the BMM shapes reaches 0.081). Waving: with ground-truth rotations ours gives
   0.21 (rigid 0.171), so the nuclear-norm shapes are wrong even with exact R; the estimated
   rotations add to it (Dai K=3 22 degrees mean error vs rigid 12 degrees).
-Speed: 99 x 28,880 face, both branches: 115 iterations, 149 s CPU / 141 s wall with 2 BLAS
-threads on a 2-core machine shared with other jobs (load 3-6); the S# Gram (F x F) and its
-product dominate, then the spatial power iterations. The 60 s target was not verified on an
-idle machine.
+Speed (99 x 28,880 face, both branches, 115 iterations, 1 BLAS thread, 2-core machine shared
+with other jobs at load 1-4; CPU seconds): before the block sweeps 45.3 s (rotation 3.5,
+initialisation 1.7, S update 8.6, spatial 6.6, S# Gram 5.7, zeta_t/S# 8.0, multipliers and
+objective 11.1; base measured again back to back: 42.0 s CPU / 47.2 s wall); after the block
+sweeps, float32 storage, the 3P-side SVT and the Gram SVD of W in the rotation step: 31.1 s CPU
+/ 31.3 s wall (rotation 2.1, initialisation 1.2, S update 6.2, spatial 6.2, S# Gram + data
+term 8.0, zeta_t 0.2, S#/multipliers 7.1), e3D 0.046091 -> 0.046086 (the rotation step's Gram
+SVD; with its SVD the iterations alone match to 1e-11 in float64). The BLAS thread count is
+pinned to 1 inside fit (BLAS_THREADS): with 2 threads the same run took 180 s wall. Per
+iteration, CPU time grows linearly in P (exponent 0.92-0.96 for P = 1k..70k at F = 30, 100)
+and costs 0.14-0.6 of one economy SVD of S# (F = 100). Memory: O(F P), nothing P x P; peak
+RSS above the loaded W for the face 687 MB -> 333 MB (``python -m bench.scale``).
 """
 import inspect
 import time
@@ -215,6 +229,26 @@ def _positive(name, value, allow_zero=False):
         bound = '>= 0' if allow_zero else '> 0'
         raise InvalidInputError(f'{name} must be a finite number {bound}; got {value!r}')
     return float(value)
+
+
+#: BLAS threads inside fit (None: leave as set). The rotation step, the initialisation and the
+#: iterations make thousands of small BLAS calls; with 2 OpenBLAS threads on the shared 2-core
+#: machine the 99 x 28,880 face took 202 s CPU / 180 s wall (rotation alone 49 s) against 31 s
+#: with 1, and the thread count changed the rotation step's rounding (e3D 0.0476 vs 0.0461).
+BLAS_THREADS = 1
+
+
+def _blas_threads(n):
+    """Context limiting BLAS threads to ``n`` (threadpoolctl, scikit-learn's dependency);
+    a no-op when ``n`` is None or threadpoolctl is missing."""
+    import contextlib
+    if n is None:
+        return contextlib.nullcontext()
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:                                  # pragma: no cover
+        return contextlib.nullcontext()
+    return threadpool_limits(limits=n, user_api='blas')
 
 
 class _Timer:
@@ -375,6 +409,10 @@ class GrassmannNRSfM:
     def fit(self, W, init=None, progress=None):
         """Reconstruct ``W: (2F, P)``. ``init``: optional :class:`WarmStart`; ``progress``:
         optional ``callback(iteration, report)`` called after every iteration."""
+        with _blas_threads(BLAS_THREADS):
+            return self._fit(W, init, progress)
+
+    def _fit(self, W, init, progress):
         t_start = time.perf_counter()
         timer = _Timer()
         p = self._validated()
@@ -385,9 +423,9 @@ class GrassmannNRSfM:
             raise InvalidInputError(f'init must be a WarmStart or None; got {type(init).__name__}')
         known, groups = self._check_init(init, F, P)
 
-        Wc, translation = centre(W)
-        scale = track_scale(Wc)
-        Wn = Wc / scale
+        Wn, translation = centre(W)
+        scale = track_scale(Wn)
+        Wn /= scale                                     # centred, unit RMS
         report = SolverReport()
         t = time.perf_counter()
         R, report.K_rot = self._rotations(Wn, init, known, p)
@@ -407,6 +445,7 @@ class GrassmannNRSfM:
         report.warm_started_frames = int(known.sum()) if init.S is not None else 0
         state = _State(Wn, R, S0, p, K_s, K_t, N_s, N_t, gamma, groups,
                        warm=init.S is not None)
+        del S0                                          # rebuilt if the run diverges
         t = timer.add('initialisation', t)
 
         reason, converged = 'max_iter reached', False
@@ -416,7 +455,7 @@ class GrassmannNRSfM:
             report.objective.append(obj)
             report.gaps.append(gaps)
             if not (np.isfinite(obj) and np.all(np.isfinite(gaps))):
-                state.fall_back(S0)
+                state.fall_back(self._initial_shapes(Wn, R, init, known, scale))
                 report.fallback = (f'non-finite objective/gap at iteration {it + 1}; '
                                    'returned the initial shapes')
                 reason = 'diverged'
@@ -432,11 +471,11 @@ class GrassmannNRSfM:
         report.reason, report.converged = reason, converged
         report.regrouped_points = state.moves
 
-        S_world = state.S_world_original_order()
-        S_cam = from_frames(R @ S_world) * scale
-        resid = Wc - from_frames(S_cam.reshape(F, 3, P)[:, :2, :])
-        report.reprojection_rms = float(np.sqrt(np.mean(resid ** 2)))
-        report.reprojection_relative = report.reprojection_rms / scale
+        report.reprojection_relative = float(np.sqrt(state.data_error() / (2 * F * P)))
+        report.reprojection_rms = report.reprojection_relative * scale
+        S_cam = np.matmul(R, state.S_world_original_order())
+        S_cam *= scale
+        S_cam = from_frames(S_cam)
         timer.add('shape', t)
         report.seconds = dict(timer.seconds, total=time.perf_counter() - t_start)
         return NRSfMResult(S=S_cam, R=R, translation=translation,
@@ -513,9 +552,58 @@ def align_rotations(R_est, R_known, known):
     return best
 
 
+#: bytes of one (F, 3, n) column block in the element-wise sweeps (keeps a block in cache)
+BLOCK_BYTES = 1 << 20
+#: storage of the (F, 3, P) iterates when F * P >= FLOAT32_MIN_SIZE: float32 halves the memory
+#: traffic that bounds an iteration; Grams, eigen/QR steps and sums stay float64
+STORAGE_DTYPE = np.float32
+FLOAT32_MIN_SIZE = 1 << 20
+
+
+def column_blocks(edges, width):
+    """Column slices of at most ``width`` columns, each inside one group ``edges[k]:edges[k+1]``.
+
+    Returns ``[(k, slice)]`` in column order.
+    """
+    out = []
+    for k in range(len(edges) - 1):
+        for a in range(edges[k], edges[k + 1], width):
+            out.append((k, slice(a, min(a + width, edges[k + 1]))))
+    return out
+
+
+def blocked_view(flat, F, rows, cols):
+    """The contiguous ``(F, rows, n)`` piece of a block-major ``flat`` buffer for ``cols``."""
+    n = cols.stop - cols.start
+    start = F * rows * cols.start
+    return flat[start:start + F * rows * n].reshape(F, rows, n)
+
+
+class _Buffer:
+    """One preallocated flat float64 buffer handing out contiguous ``(F, rows, n)`` views."""
+
+    def __init__(self, size, dtype=np.float64):
+        self.flat = np.empty(size, dtype=dtype)
+
+    def view(self, F, rows, n):
+        return self.flat[:F * rows * n].reshape(F, rows, n)
+
+
 class _State:
     """ADMM variables of Algorithm 1 and one iteration. Arrays ``(F, 3, P)`` are world-frame
-    and column-permuted so that each spatial group is a contiguous slice."""
+    and column-permuted so that each spatial group is a contiguous slice.
+
+    One iteration makes two sweeps over column blocks (each block stays in cache while all its
+    element-wise work is done; no ``(F, 3, P)`` temporary is allocated):
+
+    1. per block: S update, (per group) spatial bases + zeta_s, ``X = S - Y1/beta`` and its
+       ``F x F`` Gram contribution, the data term ``||W - R S||^2``;
+    2. per block: ``S# = op X`` with the ``F x F`` operator ``op`` (SVT and zeta_t) found from
+       the Gram in between, the gap ``max |S# - S|`` and ``Y1 += beta (S# - S)``.
+
+    When ``F > 3P`` (long sparse sequences) the SVT goes through the ``3P x 3P`` Gram instead
+    (``tall``): X is one block and ``S#`` is formed directly.
+    """
 
     def __init__(self, Wn, R, S0, p, K_s, K_t, N_s, N_t, gamma, groups, warm):
         F, P = R.shape[0], Wn.shape[1]
@@ -524,6 +612,7 @@ class _State:
         self.beta = p['warm_beta0'] if warm else p['beta0']
         self.beta_reached_max = False
         self.moves = 0
+        self.data = None                    # ||Wn - R2 S||^2 of the last sweep
         labels = groups if groups is not None else (
             gm.initial_groups(S0.reshape(3 * F, P), K_s, p['random_state'])
             if p['spatial'] else np.zeros(P, dtype=np.int64))
@@ -531,21 +620,32 @@ class _State:
         self.order = np.argsort(labels, kind='stable')
         self.labels = labels[self.order]
         self.s_edges = np.searchsorted(self.labels, np.arange(K_s + 1))
-        self.W = np.ascontiguousarray(Wn.reshape(F, 2, P)[:, :, self.order])
-        self.S = np.ascontiguousarray(S0[:, :, self.order])
+        self.dtype = dt = STORAGE_DTYPE if F * P >= FLOAT32_MIN_SIZE else np.float64
+        self.W = Wn.reshape(F, 2, P)[:, :, self.order].astype(dt)
+        self.S = S0[:, :, self.order].astype(dt)
         self.Ssh = self.S.copy()
         self.Y1 = np.zeros_like(self.S)
+        self.R2 = R[:, :2, :].astype(dt)                           # (F, 2, 3) cameras
+        self.Rs = R.astype(dt)                                     # (F, 3, 3)
+        self.Rt = np.ascontiguousarray(self.Rs.transpose(0, 2, 1))
+        self.tall = F > 3 * P
+        self.width = P if self.tall else max(1, min(P, BLOCK_BYTES // (24 * F)))
+        self.blocks = column_blocks(self.s_edges, self.width)
+        self.buffers = [_Buffer(3 * F * self.width, dt) for _ in range(3)]
+        self.wide = _Buffer(3 * F * self.width)                    # float64 copy of a block
+        self.X = np.empty(3 * F * P, dtype=dt)   # X = S - Y1/beta, block-major (blocked_view)
         self.s_bases = self._spatial_bases_exact()
         self.t_edges = gm.contiguous_blocks(F, K_t)
-        X = self.Ssh.reshape(F, -1)
-        self.G = X @ X.T
-        self.t_bases = gm.block_bases(self.G, self.t_edges, N_t)
+        G = np.zeros((F, F))
+        for _, cols in self.blocks:
+            self._add_gram(G, self.Ssh[:, :, cols])
+        self.t_bases = gm.block_bases(G, self.t_edges, N_t)
         self.C_s = np.zeros((K_s, K_s))
         self.J_s, self.Y2 = np.zeros_like(self.C_s), np.zeros_like(self.C_s)
         self.C_t = np.zeros((K_t, K_t))
         self.J_t, self.Y3 = np.zeros_like(self.C_t), np.zeros_like(self.C_t)
         self.Omega_s = self._omega_s()
-        self.Omega_t = gm.projection_kernel(gm.block_cross(self.G, self.t_edges, self.t_bases),
+        self.Omega_t = gm.projection_kernel(gm.block_cross(G, self.t_edges, self.t_bases),
                                             [v.shape[1] for v, _ in self.t_bases],
                                             p['delta'])
 
@@ -554,7 +654,8 @@ class _State:
         return self.S.reshape(3 * self.F, self.P)[:, self.s_edges[k]:self.s_edges[k + 1]]
 
     def _spatial_bases_exact(self):
-        return [gm.top_subspace(self._group(k), self.N_s)[0] for k in range(self.K_s)]
+        return [gm.top_subspace(self._group(k).astype(np.float64), self.N_s)[0]
+                for k in range(self.K_s)]
 
     def _omega_s(self):
         stacked = np.concatenate(self.s_bases, axis=1)
@@ -564,7 +665,7 @@ class _State:
     def _regroup_spatial(self):
         p = self.p
         A = gm.lrr_affinity(self.C_s, p['sigma_eps'])
-        S2 = self.S.reshape(3 * self.F, self.P)
+        S2 = self.S.reshape(3 * self.F, self.P).astype(np.float64, copy=False)
         new = gm.reassign_by_residual(S2, self.labels, self.s_bases, A, p['affinity_min'],
                                       self.N_s + 1)
         moved = int((new != self.labels).sum())
@@ -575,77 +676,198 @@ class _State:
         self.labels = new[perm]
         self.order = self.order[perm]
         self.s_edges = np.searchsorted(self.labels, np.arange(self.K_s + 1))
+        self.blocks = column_blocks(self.s_edges, self.width)
         for name in ('W', 'S', 'Ssh', 'Y1'):
-            setattr(self, name, np.ascontiguousarray(getattr(self, name)[:, :, perm]))
+            arr = getattr(self, name)
+            arr[...] = arr[:, :, perm]
         self.s_bases = self._spatial_bases_exact()
 
-    # one iteration -------------------------------------------------------------------------
-    def iterate(self, it, timer):
-        p, beta, F, P = self.p, self.beta, self.F, self.P
-        t = time.perf_counter()
-        # S update: (R^T R + beta I) S = R^T W + beta S# + Y1, per frame in closed form
-        rhs = self.Ssh * beta
-        rhs += self.Y1
-        cam = np.matmul(self.R, rhs)
-        del rhs
-        cam[:, :2, :] += self.W
-        cam[:, :2, :] /= 1.0 + beta
-        cam[:, 2, :] /= beta
-        self.S = np.matmul(self.R.transpose(0, 2, 1), cam)
-        t = timer.add('s_update', t)
+    def _update_group_basis(self, k):
+        """Spatial basis of group k follows S by warm-started power iterations, then zeta_s."""
+        group = self._group(k)
+        if group.shape[1] > self.N_s:
+            self.s_bases[k] = gm.subspace_iteration(group, self.s_bases[k],
+                                                    self.p['power_steps'])
 
-        if p['spatial']:
-            self.C_s = gm.c_update(self.Omega_s, self.J_s, self.Y2, p['lambda1'], beta)
-            if p['regroup_every'] and self.K_s > 1 and (it + 1) % p['regroup_every'] == 0:
-                self._regroup_spatial()
-            else:
-                self.s_bases = [gm.subspace_iteration(self._group(k), b, p['power_steps'])
-                                if self._group(k).shape[1] > self.N_s else b
-                                for k, b in enumerate(self.s_bases)]
-            gm.zeta(self.S.reshape(3 * F, P), self.s_edges, self.N_s, p['zeta_weight'],
-                    self.s_bases)
-            self.J_s, nuc_js = gm.singular_value_threshold(self.C_s + self.Y2 / beta,
-                                                           p['lambda3'] / beta)
-        t = timer.add('spatial', t)
+    def _zeta_group(self, k):
+        gm.zeta(self._group(k), self.s_edges[k:k + 2] - self.s_edges[k], self.N_s,
+                self.p['zeta_weight'], self.s_bases[k:k + 1])
 
-        # S# update: SVT of T1(S) - Y1/beta via the F x F Gram matrix, then zeta_t
-        X = np.multiply(self.Y1, -1.0 / beta)
-        X += self.S
-        X = X.reshape(F, 3 * P)
-        G = X @ X.T
+    # sweep 1: S update, spatial branch, Gram of X = S - Y1/beta, data term ----------------------
+    def _update_shapes(self, cols, beta, scale):
+        """S[:, :, cols] from ``(R^T P R + beta I) S = R^T W + beta S# + Y1`` per frame in
+        closed form: ``S = R^T diag(scale) (R (beta S# + Y1) + [W; 0])``, ``scale = (1/(1+beta),
+        1/(1+beta), 1/beta)``. The depth row never mixes with W, so float32 storage does not
+        leak W's rounding into depth at small beta."""
+        F, n = self.F, cols.stop - cols.start
+        rhs = np.multiply(self.Ssh[:, :, cols], self.dtype(beta),
+                          out=self.buffers[0].view(F, 3, n))
+        rhs += self.Y1[:, :, cols]
+        cam = np.matmul(self.Rs, rhs, out=self.buffers[1].view(F, 3, n))
+        cam[:, :2, :] += self.W[:, :, cols]
+        cam *= scale
+        np.matmul(self.Rt, cam, out=self.S[:, :, cols])
+
+    def _wide(self, block):
+        """``block: (F, r, n)`` as float64 (a view when it already is)."""
+        if block.dtype == np.float64:
+            return block
+        out = self.wide.view(*block.shape)
+        out[...] = block
+        return out
+
+    def _add_gram(self, G, block):
+        """``G += X X^T`` (float64) for a column block ``X: (F, 3, n)``."""
+        X = self._wide(block).reshape(self.F, -1)
+        G += X @ X.T
+
+    def _gram_and_data(self, cols, beta, G):
+        """Stores the block's ``X = S - Y1/beta``, adds its ``X X^T`` to G; returns the block's
+        ``||R2 S - W||^2``."""
+        F, n = self.F, cols.stop - cols.start
+        X = np.multiply(self.Y1[:, :, cols], self.dtype(-1.0 / beta),
+                        out=blocked_view(self.X, F, 3, cols))
+        X += self.S[:, :, cols]
+        self._add_gram(G, X)
+        resid = np.matmul(self.R2, self.S[:, :, cols], out=self.buffers[1].view(F, 2, n))
+        resid -= self.W[:, :, cols]
+        resid = self._wide(resid)
+        return float(np.vdot(resid, resid))
+
+    def _sweep_shapes(self, beta, regroup, timer, t):
+        """Sweep 1. Returns ``(G: (F, F), ||W - R S||^2, t)``."""
+        F = self.F
+        c = 1.0 / (1.0 + beta)
+        scale = np.array([c, c, 1.0 / beta], dtype=self.dtype)[None, :, None]
+        spatial = self.p['spatial']
+        G, data = np.zeros((F, F)), 0.0
+        if regroup:
+            for _, cols in self.blocks:
+                self._update_shapes(cols, beta, scale)
+            t = timer.add('s_update', t)
+            self._regroup_spatial()
+            t = timer.add('spatial', t)
+        todo = self.blocks
+        while todo:
+            k = todo[0][0]
+            group = [cols for g, cols in todo if g == k]
+            todo = todo[len(group):]
+            if not regroup:
+                for cols in group:
+                    self._update_shapes(cols, beta, scale)
+                t = timer.add('s_update', t)
+            if spatial:
+                if not regroup:
+                    self._update_group_basis(k)
+                self._zeta_group(k)
+                t = timer.add('spatial', t)
+            for cols in group:
+                data += self._gram_and_data(cols, beta, G)
+            t = timer.add('svt', t)
+        return G, data, t
+
+    # the S# step: SVT through the smaller Gram, zeta_t ------------------------------------------
+    def _temporal(self, G1, beta, it):
+        """Temporal branch on the Gram ``G1: (F, F)`` of the thresholded S#: returns the
+        block-diagonal zeta_t operator ``B: (F, F)`` (C_t, xi_t, J_t updated)."""
+        p, F = self.p, self.F
+        self.C_t = gm.c_update(self.Omega_t, self.J_t, self.Y3, p['lambda2'], beta)
+        bases = gm.block_bases(G1, self.t_edges, self.N_t)
+        if p['regroup_every'] and self.K_t > 1 and (it + 1) % p['regroup_every'] == 0:
+            A = gm.lrr_affinity(self.C_t, p['sigma_eps'])
+            edges = gm.move_block_boundaries(G1, self.t_edges, bases, A,
+                                             p['affinity_min'], self.N_t + 1)
+            if not np.array_equal(edges, self.t_edges):
+                self.t_edges = edges
+                bases = gm.block_bases(G1, edges, self.N_t)
+        B = np.eye(F)
+        for k, (v, _) in enumerate(bases):
+            r = slice(self.t_edges[k], self.t_edges[k + 1])
+            if v.shape[1] < r.stop - r.start:
+                B[r, r] -= p['zeta_weight'] * (np.eye(r.stop - r.start) - v @ v.T)
+        self.J_t, self.nuc_jt = gm.singular_value_threshold(self.C_t + self.Y3 / beta,
+                                                            p['lambda4'] / beta)
+        return B
+
+    def _shrink(self, G, beta):
+        """Eigenvectors of a Gram matrix and the SVT factors ``max(s - gamma/beta, 0) / s``."""
         vals, vecs = np.linalg.eigh(G)
         sv = np.sqrt(np.maximum(vals, 0.0))
         shrink = np.where(sv > 0, np.maximum(sv - self.gamma / beta, 0.0) / np.where(
             sv > 0, sv, 1.0), 0.0)
+        return vecs, shrink
+
+    def _sharp_operator(self, G, beta, it):
+        """Wide case (F <= 3P): ``op: (F, F)`` with ``S# = op X`` and the Gram of S#."""
+        vecs, shrink = self._shrink(G, beta)
         M = (vecs * shrink) @ vecs.T
         G1 = M @ G @ M
-        t = timer.add('svt', t)
         op = M
-        if p['temporal']:
-            self.C_t = gm.c_update(self.Omega_t, self.J_t, self.Y3, p['lambda2'], beta)
-            bases = gm.block_bases(G1, self.t_edges, self.N_t)
-            if p['regroup_every'] and self.K_t > 1 and (it + 1) % p['regroup_every'] == 0:
-                A = gm.lrr_affinity(self.C_t, p['sigma_eps'])
-                edges = gm.move_block_boundaries(G1, self.t_edges, bases, A,
-                                                 p['affinity_min'], self.N_t + 1)
-                if not np.array_equal(edges, self.t_edges):
-                    self.t_edges = edges
-                    bases = gm.block_bases(G1, edges, self.N_t)
-            B = np.eye(F)
-            for k, (v, _) in enumerate(bases):
-                r = slice(self.t_edges[k], self.t_edges[k + 1])
-                if v.shape[1] < r.stop - r.start:
-                    B[r, r] -= p['zeta_weight'] * (np.eye(r.stop - r.start) - v @ v.T)
+        if self.p['temporal']:
+            B = self._temporal(G1, beta, it)
             op = B @ M
             G1 = B @ G1 @ B.T
             self.t_bases = gm.block_bases(G1, self.t_edges, self.N_t)
-            self.J_t, nuc_jt = gm.singular_value_threshold(self.C_t + self.Y3 / beta,
-                                                           p['lambda4'] / beta)
-        self.Ssh = (op @ X).reshape(F, 3, P)
-        self.G = G1
+        nuclear = float(np.sqrt(np.maximum(np.linalg.eigvalsh(G1), 0.0)).sum())
+        return op, G1, nuclear
+
+    def _sharp_tall(self, X, beta, it):
+        """Tall case (F > 3P): S# of ``X: (F, 3P)`` through the ``3P x 3P`` Gram."""
+        vecs, shrink = self._shrink(X.T @ X, beta)
+        Z = X @ ((vecs * shrink) @ vecs.T)          # = M X
+        G1 = Z @ Z.T
+        if self.p['temporal']:
+            Z = self._temporal(G1, beta, it) @ Z
+            G1 = Z @ Z.T
+            self.t_bases = gm.block_bases(G1, self.t_edges, self.N_t)
+        nuclear = float(np.sqrt(np.maximum(np.linalg.eigvalsh(Z.T @ Z), 0.0)).sum())
+        return Z, G1, nuclear
+
+    # sweep 2: S#, gap and Y1 ---------------------------------------------------------------------
+    def _sweep_multipliers(self, beta, op=None, sharp=None):
+        """``S# = op X`` (or the given ``sharp: (F, 3P)``), ``Y1 += beta (S# - S)``; returns
+        ``max |S# - S|``."""
+        F, gap = self.F, 0.0
+        op = None if op is None else op.astype(self.dtype)
+        for _, cols in self.blocks:
+            n = cols.stop - cols.start
+            if sharp is None:
+                X = blocked_view(self.X, F, 3, cols).reshape(F, 3 * n)
+                new = np.matmul(op, X, out=self.buffers[2].view(F, 3, n).reshape(F, 3 * n))
+                new = new.reshape(F, 3, n)
+            else:
+                new = sharp.reshape(F, 3, self.P)[:, :, cols]
+            diff = np.subtract(new, self.S[:, :, cols], out=self.buffers[1].view(F, 3, n))
+            gap = max(gap, float(diff.max()), -float(diff.min()))
+            diff *= self.dtype(beta)
+            self.Y1[:, :, cols] += diff
+            self.Ssh[:, :, cols] = new
+        return gap
+
+    # one iteration -------------------------------------------------------------------------
+    def iterate(self, it, timer):
+        p, beta = self.p, self.beta
+        t = time.perf_counter()
+        regroup = bool(p['spatial'] and p['regroup_every'] and self.K_s > 1
+                       and (it + 1) % p['regroup_every'] == 0)
+        if p['spatial']:
+            self.C_s = gm.c_update(self.Omega_s, self.J_s, self.Y2, p['lambda1'], beta)
+        G, data, t = self._sweep_shapes(beta, regroup, timer, t)
+        if p['spatial']:
+            self.J_s, nuc_js = gm.singular_value_threshold(self.C_s + self.Y2 / beta,
+                                                           p['lambda3'] / beta)
+        t = timer.add('spatial', t)
+
+        # S# update: SVT of T1(S) - Y1/beta via the smaller Gram matrix, then zeta_t
+        if self.tall:
+            X = self.X.reshape(self.F, 3 * self.P).astype(np.float64)
+            sharp, G1, nuclear = self._sharp_tall(X, beta, it)
+            op = None
+        else:
+            op, G1, nuclear = self._sharp_operator(G, beta, it)
+            sharp = None
         t = timer.add('temporal', t)
 
-        # Omega from the new Grassmann points
         obj = 0.0
         if p['spatial']:
             self.Omega_s = self._omega_s()
@@ -656,13 +878,9 @@ class _State:
                 gm.block_cross(G1, self.t_edges, self.t_bases),
                 [v.shape[1] for v, _ in self.t_bases], p['delta'])
             obj += (p['lambda2'] * gm.embedding_error(self.C_t, self.Omega_t)
-                    + p['lambda4'] * nuc_jt)
+                    + p['lambda4'] * self.nuc_jt)
 
-        # multipliers, penalty, objective and gaps (in place: these are (F, 3, P) arrays)
-        diff = np.subtract(self.Ssh, self.S)
-        gap_sh = float(max(diff.max(), -diff.min()))
-        diff *= beta
-        self.Y1 += diff
+        gap_sh = self._sweep_multipliers(beta, op, sharp)
         gap_s = gap_t = 0.0
         if p['spatial']:
             self.Y2 += beta * (self.C_s - self.J_s)
@@ -670,21 +888,31 @@ class _State:
         if p['temporal']:
             self.Y3 += beta * (self.C_t - self.J_t)
             gap_t = float(np.abs(self.C_t - self.J_t).max())
-        resid = np.matmul(self.R[:, :2, :], self.S)
-        resid -= self.W
-        obj += 0.5 * float(np.vdot(resid, resid))
-        obj += self.gamma * float(np.sqrt(np.maximum(np.linalg.eigvalsh(G1), 0.0)).sum())
+        self.data = data
+        obj += 0.5 * data + self.gamma * nuclear
         self.beta_reached_max = beta >= p['beta_max']
         self.beta = min(p['rho'] * beta, p['beta_max'])
         timer.add('multipliers', t)
         return obj, (gap_sh, gap_s, gap_t)
 
     def fall_back(self, S0):
-        self.S = np.ascontiguousarray(S0[:, :, self.order])
+        self.S = S0[:, :, self.order].astype(self.dtype)
+        self.data = None
+
+    def data_error(self):
+        """``||Wn - R2 S||^2`` of the current S (from the last sweep unless S was reset)."""
+        if self.data is None:
+            resid = np.matmul(self.R2, self.S, dtype=np.float64)
+            resid -= self.W
+            self.data = float(np.vdot(resid, resid))
+        return self.data
 
     def S_world_original_order(self):
-        out = np.empty_like(self.S)
+        """World-frame S ``(F, 3, P)`` in the input's column order; frees the iteration
+        buffers (the state is spent afterwards)."""
+        out = self.Ssh
         out[:, :, self.order] = self.S
+        self.X = self.Y1 = self.S = self.Ssh = None
         return out
 
     def labels_original_order(self):

@@ -100,9 +100,11 @@ def top_subspace(M, rank):
 
 def subspace_iteration(M, basis, steps=1):
     """Warm-started block power iteration: refine ``basis: (m, r)`` towards the top-r left
-    singular subspace of ``M: (m, n)``. Cost ``O(m n r)`` per step."""
+    singular subspace of ``M: (m, n)``. Cost ``O(m n r)`` per step. The products run in M's
+    precision (float32 M stays float32), the QR in float64."""
     for _ in range(steps):
-        basis, _ = np.linalg.qr(M @ (M.T @ basis))
+        basis, _ = np.linalg.qr((M @ (M.T @ basis.astype(M.dtype, copy=False))).astype(
+            np.float64, copy=False))
     return basis
 
 
@@ -120,6 +122,7 @@ def zeta(S, edges, rank, weight=1.0, bases=None):
         if block.shape[1] <= rank:
             continue
         basis = top_subspace(block, rank)[0] if bases is None else bases[k]
+        basis = basis.astype(S.dtype, copy=False)          # products in S's precision
         if weight == 1.0:
             block[...] = basis @ (basis.T @ block)
         else:
