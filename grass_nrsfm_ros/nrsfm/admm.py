@@ -133,6 +133,42 @@ Tried and NOT adopted (no general gain):
 * Temporal smoothness instead of the nuclear norm ((R^T R + l D^T D)^+ R^T W): shark 0.058,
   pickup 0.019, but face 0.022-0.028 and waving 0.33. A combined nuclear + smoothness prior is
   the most promising open direction for shark.
+* Temporal smoothness ALONGSIDE the nuclear norm (parameter ``smoothness``, priors.py; branch
+  accuracy2): ``(lam/2)||D S||^2`` on the world shapes, D = second differences over frames,
+  S-update = one banded (3F x 3F, half-bandwidth 6) Cholesky per beta solved for all P points.
+  Absolute lam on unit-RMS W (shark / waving orbit / bending orbit / pickup / face / dance /
+  yoga), lam = 0, 10, 100, 1000: shark 0.118 / 0.100 / 0.083 / 0.058, waving 0.254 / 0.246 /
+  0.215 / 0.349, bending 0.171 / 0.168 / 0.188 / 0.203, pickup 0.020 / 0.016 / 0.015 / 0.019,
+  face 0.016 / 0.020 / 0.020 / 0.021 (lam 0.01 / 0.1 / 1: 0.0160 / 0.0167 / 0.0182), dance
+  0.124 / 0.122 / 0.116 / 0.110, yoga 0.018 / 0.016 / 0.014 / 0.013. The Torresani face tracks
+  are ~100x rougher in time than the others, so lam is made relative to the tracks' roughness
+  (mean squared second difference over mean square of unit-RMS W): lam = smoothness / rough.
+  smoothness = 0 / 1e-4 / 3e-4 / 1e-3 / 3e-3 (e3D; Akhter for mocap in brackets):
+    shark        0.1177 (.246) / 0.0885 (.194) / 0.0796 (.177) / 0.0671 (.151) / 0.0547 (.126)
+    face         0.0159 (.027) / 0.0165 (.028) / 0.0171 (.029) / 0.0179 (.030) / 0.0186 (.031)
+    pickup       0.0196 / 0.0160 / 0.0152 / 0.0146 / 0.0158
+    dance        0.1241 (.186) / 0.1223 (.182) / 0.1204 (.177) / 0.1170 (.169) / 0.1133 (.163)
+    yoga         0.0178 / 0.0158 / 0.0149 / 0.0139 / 0.0131
+    orbit  bending 0.171 / 0.166 / 0.178 / 0.187 / 0.194, waving 0.254 / 0.251 / 0.245 / 0.233
+           / 0.213, inflating 0.013 / 0.023 / 0.032 / 0.046 / 0.079, twisting 0.145 / 0.150 /
+           0.153 / 0.154 / 0.153, articulated 0.084 / 0.075 / 0.079 / 0.090 / 0.103
+    shaky  bending 0.152 / 0.147 / 0.142 / 0.132 / 0.129, waving 0.246 / 0.245 / 0.243 / 0.239
+           / 0.235, inflating 0.014 (all), twisting 0.102 / 0.097 / 0.091 / 0.083 / 0.078,
+           articulated 0.081 / 0.075 / 0.070 / 0.064 / 0.058
+    dense face seed 0 orbit 0.046 / 0.046 / 0.046 / 0.050 / 0.056, seed 2 shaky 0.053 / 0.052
+           / 0.051 / 0.049 / 0.047
+  Shark beats rigid (0.0933) and BMM's published Akhter 0.2311 from 1e-4 on, pickup / dance /
+  yoga / shaky synthetics improve, but the Torresani face, inflating-orbit (2.4x at 3e-4) and
+  bending-orbit regress and waving stays worse than rigid at every weight: NOT the default
+  (smoothness = 0); available as a parameter (e.g. 3e-4 for smooth mocap).
+  GT-free selection between the smooth and plain solutions was examined (synthetic seeds 0-2,
+  both cameras; mocap; dense faces): the plain solution's depth-vs-image roughness ratio
+  (camera frame, sum of squared second differences over energy, z over x,y) is high where
+  smoothing helps (shark 105, pickup 21, dance 19, yoga 9) and low on the face (4.6) and
+  inflating (1.4-2.5), but also huge on bending-orbit (190-670), where smoothing hurts
+  (0.171 -> 0.187): no threshold separates them, so no rule was adopted. Synthetic seeds 1-2
+  show more kinds worse than rigid with the defaults (bending orbit/shaky seeds 1, 2:
+  0.167-0.175 vs rigid 0.134-0.147; articulated orbit/shaky seed 2: 0.142-0.144 vs 0.118).
 * Warm start from the rigid shape: shark 0.051 (warm_beta0 = 1) but pickup 0.26, face 0.23.
 Diagnosis. Shark: W has rank 5; K_rot = 2 rotations are exact (residual 8.6e-9; the GT
   shapes rotated by them give a world S# of rank 3, singular values 1, 0.14, 0.08), so the
@@ -162,6 +198,7 @@ import numpy as np
 from . import grassmann as gm
 from .measurement import (InvalidInputError, centre, from_frames, track_scale,
                           validate_rotations, validate_shapes, validate_tracks)
+from .priors import smoothness_weight, TemporalSmoothness
 
 
 @dataclass
@@ -271,6 +308,10 @@ class GrassmannNRSfM:
     parameter_specs = {
         'gamma': ('nuclear-norm weight on S#, relative: gamma * sqrt(F*P) on unit-RMS tracks',
                   'float >= 0'),
+        'smoothness': ('temporal smoothness prior (lam/2)||D S||^2 on the world shapes (D: '
+                       'second differences over frames), relative: lam = smoothness / '
+                       'roughness of the tracks (priors.smoothness_weight); 0 = off',
+                       'float >= 0'),
         'lambda1': ('weight of the spatial self-expression error ||T_s - T_s C_s||^2',
                     'float >= 0'),
         'lambda2': ('weight of the temporal self-expression error ||T_t - T_t C_t||^2',
@@ -304,13 +345,14 @@ class GrassmannNRSfM:
         'random_state': ('seed for k-means++ grouping (and the rotation step)', 'int or None'),
     }
 
-    def __init__(self, gamma=1e-3, lambda1=1.0, lambda2=1.0, lambda3=0.1, lambda4=0.1,
-                 K_rot='auto', K_s='auto', K_t='auto', N_s='auto', N_t='auto',
+    def __init__(self, gamma=1e-3, smoothness=0.0, lambda1=1.0, lambda2=1.0, lambda3=0.1,
+                 lambda4=0.1, K_rot='auto', K_s='auto', K_t='auto', N_s='auto', N_t='auto',
                  sigma_eps=4.0, affinity_min=0.5, regroup_every=10, zeta_weight=1.0,
                  power_steps=1, delta=1e-8, rho=1.2, beta0=1e-3, beta_max=1e6,
                  warm_beta0=0.01, eps=1e-12, max_iter=500, spatial=True, temporal=True,
                  random_state=0):
         self.gamma = gamma
+        self.smoothness = smoothness
         self.lambda1 = lambda1
         self.lambda2 = lambda2
         self.lambda3 = lambda3
@@ -358,7 +400,8 @@ class GrassmannNRSfM:
     # validation ------------------------------------------------------------------------------
     def _validated(self):
         p = {}
-        for name in ('gamma', 'lambda1', 'lambda2', 'lambda3', 'lambda4', 'delta', 'eps'):
+        for name in ('gamma', 'smoothness', 'lambda1', 'lambda2', 'lambda3', 'lambda4', 'delta',
+                     'eps'):
             p[name] = _positive(name, getattr(self, name), allow_zero=True)
         for name in ('sigma_eps', 'beta0', 'beta_max', 'warm_beta0'):
             p[name] = _positive(name, getattr(self, name))
@@ -634,6 +677,8 @@ class _State:
         self.buffers = [_Buffer(3 * F * self.width, dt) for _ in range(3)]
         self.wide = _Buffer(3 * F * self.width)                    # float64 copy of a block
         self.X = np.empty(3 * F * P, dtype=dt)   # X = S - Y1/beta, block-major (blocked_view)
+        self.smoother = (TemporalSmoothness(R, smoothness_weight(Wn, p['smoothness']))
+                         if p['smoothness'] > 0 else None)
         self.s_bases = self._spatial_bases_exact()
         self.t_edges = gm.contiguous_blocks(F, K_t)
         G = np.zeros((F, F))
@@ -700,6 +745,11 @@ class _State:
         1/(1+beta), 1/beta)``. The depth row never mixes with W, so float32 storage does not
         leak W's rounding into depth at small beta."""
         F, n = self.F, cols.stop - cols.start
+        if self.smoother is not None:     # frames coupled: one banded solve (priors.py)
+            rhs = self.Ssh[:, :, cols].astype(np.float64) * beta + self.Y1[:, :, cols]
+            self.S[:, :, cols] = self.smoother.solve(self.W[:, :, cols].astype(np.float64),
+                                                     rhs, beta)
+            return
         rhs = np.multiply(self.Ssh[:, :, cols], self.dtype(beta),
                           out=self.buffers[0].view(F, 3, n))
         rhs += self.Y1[:, :, cols]
@@ -890,6 +940,8 @@ class _State:
             gap_t = float(np.abs(self.C_t - self.J_t).max())
         self.data = data
         obj += 0.5 * data + self.gamma * nuclear
+        if self.smoother is not None:
+            obj += self.smoother.energy(self.S)
         self.beta_reached_max = beta >= p['beta_max']
         self.beta = min(p['rho'] * beta, p['beta_max'])
         timer.add('multipliers', t)

@@ -1,0 +1,95 @@
+"""Extra shape priors for the ADMM S-update of :mod:`.admm`.
+
+Temporal smoothness of the world-frame shapes, ``(lam/2) ||D S||^2`` with ``D`` the
+second-difference operator over frames (applied to every coordinate of every point). With it
+the S-update ``min 1/2 ||W - R S||^2 + lam/2 ||D S||^2 + beta/2 ||S - S# - Y1/beta||^2`` couples
+frames: for every point the same symmetric positive definite banded ``(3F, 3F)`` system
+``(blockdiag(R_f^T P R_f) + lam (D^T D kron I_3) + beta I) s = b`` (half-bandwidth 6), factored
+once per beta and solved for all P right-hand sides at once (O(F P) memory and time).
+"""
+import numpy as np
+from scipy.linalg import cho_solve_banded, cholesky_banded
+
+HALF_BANDWIDTH = 6     # frame f couples to f +- 2 through D^T D: 3 * 2 rows in (3F) layout
+
+
+def second_difference_bands(F):
+    """Bands ``(3, F)`` of ``D^T D`` (``D: (F-2, F)`` rows ``[1, -2, 1]``): row d holds
+    ``(D^T D)[f + d, f]`` at column f (zero past the end)."""
+    bands = np.zeros((3, F))
+    if F < 3:
+        return bands
+    w = np.array([1.0, -2.0, 1.0])
+    for i in range(3):
+        for j in range(i, 3):
+            # row r of D touches frames r + i and r + j with weight w[i] w[j]
+            bands[j - i, i:F - 2 + i] += w[i] * w[j]
+    return bands
+
+
+class TemporalSmoothness:
+    """Banded solver of the S-update with the smoothness prior.
+
+    ``R: (F, 3, 3)`` world->camera, ``lam``: absolute weight on unit-RMS tracks.
+    """
+
+    def __init__(self, R, lam):
+        F = R.shape[0]
+        self.F, self.lam = F, float(lam)
+        self.R = R
+        # data part, lower banded: A[3f+i, 3f+j] = (R_f^T P R_f)[i, j] for i >= j
+        data = np.einsum('fki,fkj->fij', R[:, :2, :], R[:, :2, :])
+        ab = np.zeros((HALF_BANDWIDTH + 1, 3 * F))
+        for i in range(3):
+            for j in range(i + 1):
+                ab[i - j, 3 * np.arange(F) + j] += data[:, i, j]
+        dd = second_difference_bands(F)
+        for d in range(3):
+            for i in range(3):
+                ab[3 * d, 3 * np.arange(F) + i] += self.lam * dd[d]
+        self.ab = ab
+        self._beta = None
+        self._factor = None
+
+    def _factor_for(self, beta):
+        if beta != self._beta:
+            ab = self.ab.copy()
+            ab[0] += beta
+            self._factor = cholesky_banded(ab, lower=True, check_finite=False)
+            self._beta = beta
+        return self._factor
+
+    def solve(self, W, rhs_world, beta):
+        """S ``(F, 3, P)`` world frame minimising the S-update objective.
+
+        ``W: (F, 2, P)`` unit-RMS centred tracks, ``rhs_world: (F, 3, P)`` = ``beta S# + Y1``.
+        """
+        F, P = self.F, W.shape[2]
+        b = rhs_world + np.matmul(self.R[:, :2, :].transpose(0, 2, 1), W)
+        x = cho_solve_banded((self._factor_for(beta), True), b.reshape(3 * F, P),
+                             overwrite_b=True, check_finite=False)
+        return x.reshape(F, 3, P)
+
+    def energy(self, S):
+        """``(lam/2) ||D S||^2`` for ``S: (F, 3, P)``."""
+        if self.F < 3:
+            return 0.0
+        d2 = S[2:] - 2.0 * S[1:-1] + S[:-2]
+        return 0.5 * self.lam * float(np.vdot(d2, d2))
+
+
+def track_roughness(Wn):
+    """Mean squared second difference over frames of ``Wn: (2F, P)`` over its mean square."""
+    F = Wn.shape[0] // 2
+    X = Wn.reshape(F, 2, -1)
+    if F < 3:
+        return 1.0
+    d2 = X[2:] - 2.0 * X[1:-1] + X[:-2]
+    return float(np.mean(d2 ** 2) / max(np.mean(X ** 2), np.finfo(float).tiny))
+
+
+def smoothness_weight(Wn, relative):
+    """Absolute weight ``lam`` of ``(lam/2)||D S||^2`` for a relative one: ``relative`` over
+    the roughness of the observed tracks, so that the prior costs ``relative`` times the data
+    energy on shapes exactly as rough as the image tracks."""
+    return relative / max(track_roughness(Wn), 1e-12)
