@@ -252,13 +252,17 @@ class SolverReport:
 @dataclass
 class NRSfMResult:
     """``S: (3F, P)`` camera frame, ``R: (F, 3, 3)``, ``translation: (2F, 1)``,
-    ``groups: (P,)`` spatial labels, ``blocks: (K_t + 1,)`` temporal block edges."""
+    ``groups: (P,)`` spatial labels, ``blocks: (K_t + 1,)`` temporal block edges,
+    ``C_s: (K_s, K_s)`` and ``C_t: (K_t, K_t)`` the self-expression coefficients at the end
+    (rows: the supplementary's convention, group i ~ sum_j C_ij group j)."""
     S: np.ndarray
     R: np.ndarray
     translation: np.ndarray
     groups: np.ndarray
     blocks: np.ndarray
     report: SolverReport
+    C_s: np.ndarray = None
+    C_t: np.ndarray = None
 
 
 def _auto_or_int(name, value, low=1):
@@ -534,7 +538,7 @@ class GrassmannNRSfM:
         report.seconds = dict(timer.seconds, total=time.perf_counter() - t_start)
         return NRSfMResult(S=S_cam, R=R, translation=translation,
                            groups=state.labels_original_order(), blocks=state.t_edges.copy(),
-                           report=report)
+                           report=report, C_s=state.C_s.copy(), C_t=state.C_t.copy())
 
     @staticmethod
     def _check_init(init, F, P):
