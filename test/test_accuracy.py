@@ -14,8 +14,8 @@ from functools import lru_cache
 import os
 
 import pytest
-from conftest import data_root, load_dataset
 
+from conftest import data_root, load_dataset
 from grass_nrsfm_ros.nrsfm import GrassmannNRSfM
 from grass_nrsfm_ros.nrsfm.metrics import e3d, e3d_akhter
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation

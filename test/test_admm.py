@@ -2,9 +2,9 @@ import tracemalloc
 
 import numpy as np
 import pytest
-from conftest import data_root
 
-from grass_nrsfm_ros.nrsfm import GrassmannNRSfM, InvalidInputError, WarmStart, e3d
+from conftest import data_root
+from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM, InvalidInputError, WarmStart
 from grass_nrsfm_ros.nrsfm.admm import align_rotations
 
 

@@ -200,14 +200,14 @@ iteration, CPU time grows linearly in P (exponent 0.92-0.96 for P = 1k..70k at F
 and costs 0.14-0.6 of one economy SVD of S# (F = 100). Memory: O(F P), nothing P x P; peak
 RSS above the loaded W for the face 687 MB -> 333 MB (``python -m bench.scale``).
 """
+from dataclasses import dataclass, field
 import inspect
 import time
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from . import grassmann as gm
-from .measurement import (InvalidInputError, centre, from_frames, track_scale,
+from .measurement import (centre, from_frames, InvalidInputError, track_scale,
                           validate_rotations, validate_shapes, validate_tracks)
 from .priors import smoothness_weight, TemporalSmoothness
 
