@@ -75,11 +75,12 @@ NODE_PARAMS = (
               'Earlier frames solved again with each window (warm-started from their last '
               'solution, not republished): the shape prior sees window + context frames. 0: '
               'the window alone.', range=(0, 100000)),
-    ParamSpec('warm_rotations', 'refine', str,
-              "Rotations of a warm-started solve: 'refine' (Dai's over all frames, aligned to "
-              "the previous solution), 'fit' (previous ones; new frames fitted to the previous "
-              "shape: cheapest, good on dense surfaces), 'solver' (previous ones fixed, new "
-              "ones from the solver's estimate).", choices=('refine', 'fit', 'solver')),
+    ParamSpec('warm_rotations', 'solver', str,
+              "Rotations of a warm-started solve: 'solver' (previous ones fixed, new ones from "
+              "the solver's estimate), 'refine' (Dai's over all frames, aligned to the previous "
+              "solution: slightly more accurate, one more rotation estimate per window), 'fit' "
+              "(previous ones; new frames fitted to the previous shape: cheapest, good on dense "
+              'surfaces, poor on sparse mocap).', choices=('refine', 'fit', 'solver')),
     ParamSpec('align_windows', True, bool,
               "Flip each window's depth to agree with the previous window on the overlap, so "
               'published clouds keep one orientation over time.'),
