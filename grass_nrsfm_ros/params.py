@@ -79,7 +79,7 @@ NODE_PARAMS = (
               "Rotations of a warm-started solve: 'solver' (previous ones fixed, new ones from "
               "the solver's estimate), 'refine' (Dai's over all frames, aligned to the previous "
               "solution: slightly more accurate, one more rotation estimate per window), 'fit' "
-              "(previous ones; new frames fitted to the previous shape: cheapest, good on dense "
+              '(previous ones; new frames fitted to the previous shape: cheapest, good on dense '
               'surfaces, poor on sparse mocap).', choices=('refine', 'fit', 'solver')),
     ParamSpec('align_windows', True, bool,
               "Flip each window's depth to agree with the previous window on the overlap, so "
