@@ -53,7 +53,8 @@ setup(
     extras_require={
         'ros': ROS_JAZZY_WHEELS,
         'test': ['pytest>=7', 'hypothesis>=6', 'colcon-common-extensions>=0.3', 'flake8>=6',
-                 'flake8-quotes>=3.3', 'flake8-import-order>=0.18'],
+                 'flake8-quotes>=3.3', 'flake8-import-order>=0.18',
+                 'pytest-rerunfailures>=12'],
     },
     tests_require=['pytest'],
     zip_safe=True,
