@@ -223,3 +223,15 @@ def loglog_slope(x, y):
 def log(msg):
     """Progress to stderr (results go to JSON)."""
     print(msg, file=sys.stderr, flush=True)
+
+
+def study_sequence(mode):
+    """``(name, (W, S))`` of the parameter and noise studies: a dense face (a synthetic bending
+    sheet where the face model is absent), sized by the mode."""
+    if mode.name == 'smoke':
+        return 'synthetic_bending', synthetic('bending', 10, 100)
+    F, P = mode.pick(None, (30, 1000), (99, 5000))
+    face = dense_face(F, P)
+    if face is not None:
+        return f'dense_face_{F}x{P}', face
+    return 'synthetic_bending', synthetic('bending', F, P)

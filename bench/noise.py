@@ -10,20 +10,10 @@ from .published import PUBLISHED_NOISE_SDG
 METHODS = ('ours', 'rigid', 'bmm', 'pta')
 
 
-def sequence(mode):
-    if mode.name == 'smoke':
-        return 'synthetic_bending', common.synthetic('bending', 10, 100)
-    F, P = mode.pick(None, (30, 1000), (99, 5000))
-    face = common.dense_face(F, P)
-    if face is not None:
-        return f'dense_face_{F}x{P}', face
-    return 'synthetic_bending', common.synthetic('bending', F, P)
-
-
 def run(mode):
     from grass_nrsfm_ros.nrsfm.metrics import e3d
 
-    name, (W, S) = sequence(mode)
+    name, (W, S) = common.study_sequence(mode)
     ratios = mode.pick((0.03,), (0.0, 0.01, 0.03, 0.05), (0.0, 0.01, 0.02, 0.03, 0.04, 0.05))
     repeats = mode.pick(1, 2, 10)
     rows, skipped = [], []

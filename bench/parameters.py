@@ -11,16 +11,6 @@ ABLATION = {'none': dict(spatial=False, temporal=False), 'spatial': dict(spatial
             'both': dict(spatial=True, temporal=True)}
 
 
-def sequence(mode):
-    if mode.name == 'smoke':
-        return 'synthetic_bending', common.synthetic('bending', 10, 100)
-    F, P = mode.pick(None, (30, 1000), (99, 5000))
-    face = common.dense_face(F, P)
-    if face is not None:
-        return f'dense_face_{F}x{P}', face
-    return 'synthetic_bending', common.synthetic('bending', F, P)
-
-
 def coefficient_images(result, out_dir, tag):
     """Save ``C_s`` / ``C_t`` (if the result or its report carries them) as PNGs."""
     saved = {}
@@ -52,7 +42,7 @@ def run(mode):
     why = common.missing('ours')
     if why:
         return {'rows': [], 'skipped': [{'method': 'ours', 'why': why}], 'plots': []}
-    name, (W, S) = sequence(mode)
+    name, (W, S) = common.study_sequence(mode)
     sweeps = {'N_s': mode.pick((2,), (2, 3, 5), (1, 2, 3, 4, 5, 6, 8)),
               'K_s': mode.pick((2,), (1, 2, 4, 8), (1, 2, 4, 8, 16, 32))}
     settings = [(k, v, {k: v}) for k, values in sweeps.items() for v in values]
