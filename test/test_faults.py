@@ -165,9 +165,10 @@ def _limit_file_size():
 
 
 @pytest.mark.ros
-@pytest.mark.xfail(reason='open: under RLIMIT_FSIZE the node (rigid test solver) stalls in a '
-                          'LAPACK lstsq after the recording error and publishes 60 of 150 '
-                          'frames; the one-error-line part holds; cause not found yet',
+@pytest.mark.xfail(reason='open: under RLIMIT_FSIZE the node with the rigid TEST solver '
+                          '(RigidALS) stalls in its lstsq loop after the recording error and '
+                          'publishes 60 of 150 frames; with the real GrassmannNRSfM the same '
+                          'run published 140, counted 10 as lost, 0 pending (one error line)',
                    strict=False)
 def test_full_recording_target_gives_one_error_and_reconstruction_goes_on(ros_env, tmp_path):
     rosutil = ros()
