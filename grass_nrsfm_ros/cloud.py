@@ -126,6 +126,12 @@ def structured_view(msg, wanted):
     return np.ascontiguousarray(rows).view(dtype).reshape(n)
 
 
+def strictly_increasing(ids):
+    """True if ``ids: (P,)`` is sorted with no repeats (then neither a sort nor a duplicate
+    check is needed)."""
+    return bool(ids.size < 2 or (ids[1:] > ids[:-1]).all())
+
+
 def decode_tracks(msg):
     """Decode a ``tracks`` cloud into :class:`Tracks`.
 
@@ -138,7 +144,10 @@ def decode_tracks(msg):
     with np.errstate(invalid='ignore'):              # signalling NaNs in float32 data
         uv = np.stack([view['u'].astype(np.float64), view['v'].astype(np.float64)], axis=1)
     finite = np.isfinite(uv).all(axis=1)
-    ids, uv = ids[finite], uv[finite]
+    if not finite.all():
+        ids, uv = ids[finite], uv[finite]
+    if strictly_increasing(ids):                     # the usual tracker output: no sort needed
+        return Tracks(ids=ids, uv=uv)
     unique, counts = np.unique(ids, return_counts=True)
     if unique.size != ids.size:
         dup = unique[counts > 1]

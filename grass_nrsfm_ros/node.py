@@ -5,11 +5,15 @@ The algorithm lives in :mod:`grass_nrsfm_ros.pipeline` (windows, warm start, ali
 :mod:`grass_nrsfm_ros.nrsfm`; here: parameters (:mod:`grass_nrsfm_ros.params`), decoding,
 one worker thread for solves, publishing, logging, recording.
 
-Threading: a MultiThreadedExecutor runs the input subscription (its own mutually exclusive
-group, so frames stay in order) and the housekeeping; a closed window is handed to one worker
-thread and the callback returns at once. While a solve runs, newer windows replace the one
-waiting (counted as dropped windows): the node skips to the newest window instead of queueing,
-and the pipeline still publishes every frame that window covers.
+Threading: a SingleThreadedExecutor runs the input subscription and the housekeeping (frames
+stay in order); a closed window is handed to one worker thread and the callback returns at
+once. One executor thread, not a MultiThreadedExecutor: under load the solver thread holds the
+GIL most of the time, and every hand-off between executor threads waits for it again (measured
+at 30 Hz, 30k points, a busy 2-core machine: the multi-threaded executor fell 3.3 s behind and
+its depth-100 input history overwrote 12-90 of 600 frames; one thread kept up, 0.1 s behind).
+While a solve runs, newer windows replace the one waiting (counted as dropped windows): the
+node skips to the newest window instead of queueing, and the pipeline still publishes every
+frame that window covers.
 
 Start: ``ros2 run grass_nrsfm_ros node --ros-args ...``, ``grass-nrsfm node --ros-args ...``
 or ``python -m grass_nrsfm_ros.node --ros-args ...``.
@@ -28,7 +32,7 @@ import rclpy
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.duration import Duration
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
@@ -360,7 +364,7 @@ def main(args=None, *, solver_factory=None, warm_start_class=None):
         rclpy.try_shutdown()
         return 2
     try:
-        executor = MultiThreadedExecutor(num_threads=2)
+        executor = SingleThreadedExecutor()
         executor.add_node(node)
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):

@@ -46,6 +46,7 @@ import time
 
 import numpy as np
 
+from grass_nrsfm_ros.cloud import strictly_increasing
 from grass_nrsfm_ros.nrsfm.measurement import as_frames, centre
 
 MIN_WINDOW_FRAMES = 3
@@ -246,8 +247,9 @@ class SlidingWindow:
             if not np.isfinite(uv).all():
                 raise FrameError(f'{int((~np.isfinite(uv)).any(axis=1).sum())} tracks with '
                                  'non-finite u/v')
-            order = np.argsort(ids, kind='stable')
-            ids, uv = ids[order].astype(np.uint32), uv[order]
+            # the frame keeps copies (the caller may reuse its arrays); sorted input needs no sort
+            order = slice(None) if strictly_increasing(ids) else np.argsort(ids, kind='stable')
+            ids, uv = ids[order].astype(np.uint32), uv[order].copy()
             if (ids[1:] == ids[:-1]).any():
                 raise FrameError(f'duplicate track id {int(ids[1:][ids[1:] == ids[:-1]][0])}')
             new_sequence = bool(self._frames) and self._shared(
@@ -266,13 +268,17 @@ class SlidingWindow:
 
     @staticmethod
     def _shared(a, b):
+        if np.array_equal(a.ids, b.ids):                 # the same tracks: no set operation
+            return int(a.ids.size)
         return int(np.intersect1d(a.ids, b.ids, assume_unique=True).size)
 
     def _emit(self, frames):
         common = frames[0].ids
         for f in frames[1:]:
-            common = np.intersect1d(common, f.ids, assume_unique=True)
-        uv = np.stack([f.uv[np.searchsorted(f.ids, common)] for f in frames])    # (F, P, 2)
+            if not np.array_equal(common, f.ids):
+                common = np.intersect1d(common, f.ids, assume_unique=True)
+        uv = np.stack([f.uv if f.ids.size == common.size else
+                       f.uv[np.searchsorted(f.ids, common)] for f in frames])    # (F, P, 2)
         W = uv.transpose(0, 2, 1).reshape(2 * len(frames), common.size)
         stamps = np.array([f.stamp_ns for f in frames], dtype=np.int64)
         for s in stamps:
