@@ -325,7 +325,8 @@ class ReconstructionNode(Node):
                   'frames lost': stats['frames_lost'],
                   'frames pending': self.pipeline.pending_frames,
                   'sequences': stats['resets'] + 1,
-                  'windows not solved': self._counts['solve_errors']}
+                  'windows not solved': self._counts['solve_errors'],
+                  'solver busy': self._busy}
         message = 'falling behind: skipping to the newest window' if behind else 'ok'
         level = DiagnosticStatus.WARN if behind else DiagnosticStatus.OK
         if self.recorder is not None and self.recorder.error:

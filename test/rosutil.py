@@ -79,10 +79,12 @@ class Feeder:
         return {kv.key: kv.value for kv in self.diagnostics[-1].status[0].values}
 
     def accounted(self, sent, timeout=30, quiet=1.5):
-        """Wait until the node's diagnostics count ``sent`` messages received and stay unchanged
-        for ``quiet`` s (no solve running); return them as ints (None on timeout). Then every
-        message is accounted for: ``messages received == dropped messages + frames published +
-        frames lost + frames pending``."""
+        """Wait until the node's diagnostics count ``sent`` messages received, report the solver
+        idle (no solve running, none waiting) and stay unchanged for ``quiet`` s; return them
+        as ints (None on timeout). Then every message is accounted for: ``messages received ==
+        dropped messages + frames published + frames lost + frames pending``. (Without the
+        'solver busy' check, a solve longer than ``quiet`` looked like the end and left its
+        frames pending.)"""
         keys = ('messages received', 'dropped messages', 'frames published', 'frames lost',
                 'frames pending', 'windows solved', 'dropped windows')
         deadline, last, since = time.monotonic() + timeout, None, time.monotonic()
@@ -92,6 +94,7 @@ class Feeder:
             if now != last:
                 last, since = now, time.monotonic()
             elif (values and int(values['messages received']) >= sent
+                  and values.get('solver busy') == 'False'
                   and time.monotonic() - since >= quiet):
                 return {k: int(values[k]) for k in keys}
             time.sleep(0.1)

@@ -165,12 +165,13 @@ def _limit_file_size():
 
 
 @pytest.mark.ros
-@pytest.mark.xfail(reason='open: under RLIMIT_FSIZE the node with the rigid TEST solver '
-                          '(RigidALS) stalls in its lstsq loop after the recording error and '
-                          'publishes 60 of 150 frames; with the real GrassmannNRSfM the same '
-                          'run published 140, counted 10 as lost, 0 pending (one error line)',
-                   strict=False)
 def test_full_recording_target_gives_one_error_and_reconstruction_goes_on(ros_env, tmp_path):
+    """The recording fails (RLIMIT_FSIZE: EFBIG) after ~45 frames: one error line, and every
+    frame is still reconstructed or counted. (Was xfail: 'the rigid test solver stalls, 60 of
+    150 published'. Not reproduced since the rigid stand-in solves windows without context
+    frames: 150/150 in 3 of 3 runs with the old node, 140 + 10 counted lost with 3 CPU hogs.
+    The likely mechanism, a solve longer than the 1.5 s quiet period of ``accounted`` read as
+    the end, is closed: the node reports 'solver busy' and ``accounted`` waits for it.)"""
     rosutil = ros()
     log = tmp_path / 'node.log'
     args = ['-p', f'record_path:={tmp_path}/rec']
@@ -189,8 +190,10 @@ def test_full_recording_target_gives_one_error_and_reconstruction_goes_on(ros_en
     assert len(errors) == 1 and 'File too large' in errors[0], text
     # 256 kB hold ~45 frames of tracks and points: most frames came after the error
     assert counts['frames published'] >= 100, (counts, text.splitlines()[error_at:])
-    assert counts['messages received'] == (counts['dropped messages'] + counts['frames published']
-                                           + counts['frames lost'] + counts['frames pending'])
+    # every frame accounted for: 150 frames close windows at 30, 40, ..., 150, so none pending
+    assert counts['frames pending'] == 0, counts
+    assert counts['messages received'] == len(messages) == (
+        counts['dropped messages'] + counts['frames published'] + counts['frames lost']), counts
     assert 'recording failed' in status.message
     assert 'Traceback' not in text
 
