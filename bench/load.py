@@ -6,11 +6,12 @@ node's diagnostics), the accounting (every message received is dropped, publishe
 lost (skipped windows) or pending: ``frames unaccounted`` must be 0) and the recording's
 completeness (messages in the recorded bag vs sent and published).
 
-    python -m bench.load                      # 10 min, 30 Hz, 30,000 points, rigid test solver
-    python -m bench.load --seconds 20 --points 2000 --solver grassmann
+    python -m bench.load                      # 10 min, 30 Hz, 30,000 points, the node as shipped
+    python -m bench.load --seconds 20 --points 2000 --solver rigid
 
-``--solver rigid`` injects the rigid solver of test/test_pipeline (the node and pipeline under
-load, not the Grassmannian solver's speed); ``grassmann`` runs the node as shipped. Results go
+``--solver grassmann`` (default) runs the node as shipped (GrassmannNRSfM, 60 context frames);
+``rigid`` injects the rigid solver of test/test_pipeline without context frames (the node and
+pipeline under load, not the Grassmannian solver's speed). Results go
 to ``bench/results/reliability.json`` under ``load`` (and are printed).
 """
 import argparse
@@ -52,6 +53,13 @@ def rss_mb(pid):
     return None
 
 
+def sample(start, proc, feeder):
+    """``(t_s, node RSS MB, messages received, windows solved)`` now."""
+    values = feeder.diagnostic_values()
+    return (round(time.monotonic() - start, 1), rss_mb(proc.pid),
+            int(values.get('messages received', 0)), int(values.get('windows solved', 0)))
+
+
 def clouds(points, n_frames=90, seed=0):
     """``n_frames`` distinct tracks clouds (rclpy) of a bending sheet, re-stamped when sent."""
     from std_msgs.msg import Header
@@ -67,9 +75,35 @@ def clouds(points, n_frames=90, seed=0):
             for uv in as_frames(W, 2)]
 
 
+def memory_figures(samples, warm_frames, warm_solves=2):
+    """RSS figures from ``samples``: ``(t_s, rss_mb, messages received, windows solved)`` once a
+    second. Warm-up ends at the first sample with ``warm_frames`` messages received (the
+    pipeline's buffers full: window + context frames) and ``warm_solves`` windows solved (the
+    solver's working set and the kept previous solution allocated); 'growth_after_warmup' is
+    the largest RSS after it minus the RSS at it, 'slope_mb_per_min' a least-squares line
+    through the samples after it (a leak of a frame per message shows as a steady slope)."""
+    rss = np.array([m for _, m, _, _ in samples], dtype=float)
+    t = np.array([s[0] for s in samples], dtype=float)
+    warm = next((i for i, (_, _, n, k) in enumerate(samples)
+                 if n >= warm_frames and k >= warm_solves), None)
+    out = dict(start=round(float(rss[0]), 1), max=round(float(rss.max()), 1),
+               end=round(float(rss[-1]), 1), warmup_frames=warm_frames,
+               warmup_solves=warm_solves, warmup_end_s=None, after_warmup=None,
+               growth_after_warmup=None, slope_mb_per_min=None,
+               samples=[(s[0], round(s[1], 1)) for s in samples[::max(1, len(samples) // 120)]])
+    if warm is not None:
+        after = rss[warm:]
+        out.update(warmup_end_s=float(t[warm]), after_warmup=round(float(after[0]), 1),
+                   growth_after_warmup=round(float(after.max() - after[0]), 1))
+        if after.size >= 3:
+            out['slope_mb_per_min'] = round(float(np.polyfit(t[warm:], after, 1)[0] * 60), 2)
+    return out
+
+
 def run(seconds=600.0, points=30_000, rate=30.0, solver='rigid', window=30, stride=10,
-        record=True, tmp=None, log=print, depth=10):
-    """Run the load; return the figures (a dict)."""
+        record=True, tmp=None, log=print, depth=10, context=None):
+    """Run the load; return the figures (a dict). ``context``: the node's context_frames
+    (default: 0 for the rigid stand-in, as in the tests; the node's default for grassmann)."""
     sys.path.insert(0, str(REPO / 'test'))
     tmp = Path(tmp or tempfile.mkdtemp(prefix='grass_load_'))
     env = isolated_env(tmp)
@@ -77,8 +111,14 @@ def run(seconds=600.0, points=30_000, rate=30.0, solver='rigid', window=30, stri
 
     from grass_nrsfm_ros import bag
 
+    from grass_nrsfm_ros.params import all_params
+
     launch = rosutil.RIGID_LAUNCH if solver == 'rigid' else DEFAULT_LAUNCH
-    args = ['-p', f'window_size:={window}', '-p', f'window_stride:={stride}']
+    if context is None:
+        context = 0 if solver == 'rigid' else next(
+            p.default for p in all_params() if p.name == 'context_frames')
+    args = ['-p', f'window_size:={window}', '-p', f'window_stride:={stride}',
+            '-p', f'context_frames:={context}']
     if record:
         args += ['-p', f'record_path:={tmp}/recording']
     messages = clouds(points)
@@ -103,17 +143,19 @@ def run(seconds=600.0, points=30_000, rate=30.0, solver='rigid', window=30, stri
                 t0_ns + int(k * period * 1e9), 10 ** 9)
             feeder.pub.publish(msg)
             if time.monotonic() >= next_sample:
-                rss.append((round(time.monotonic() - start, 1), rss_mb(proc.pid)))
+                rss.append(sample(start, proc, feeder))
                 next_sample += 1.0
                 if len(rss) % 60 == 0:
-                    log(f'{rss[-1][0]:.0f} s: sent {k + 1}, node RSS {rss[-1][1]:.0f} MB')
+                    log(f'{rss[-1][0]:.0f} s: sent {k + 1}, node RSS {rss[-1][1]:.0f} MB, '
+                        f'received {rss[-1][2]}, solved {rss[-1][3]}')
         send_seconds = time.monotonic() - start
-        counts = feeder.accounted(n_total, timeout=120)
-        rss.append((round(time.monotonic() - start, 1), rss_mb(proc.pid)))
+        counts = feeder.accounted(n_total, timeout=120 if solver == 'rigid' else 600)
+        rss.append(sample(start, proc, feeder))
         received_points = feeder.points_received
         code = rosutil.stop(proc, signal.SIGINT, timeout=60)
     figures = dict(seconds=seconds, points=points, rate=rate, solver=solver, window=window,
-                   stride=stride, sent=n_total, send_seconds=round(send_seconds, 1),
+                   stride=stride, context_frames=context, sent=n_total,
+                   send_seconds=round(send_seconds, 1),
                    sends_late_by_more_than_a_period=late, exit_code=code,
                    points_clouds_received_by_subscriber=received_points)
     if counts is None:
@@ -124,12 +166,7 @@ def run(seconds=600.0, points=30_000, rate=30.0, solver='rigid', window=30, stri
     figures['frames unaccounted'] = n_total - (counts['dropped messages'] +
                                                counts['frames published'] +
                                                counts['frames lost'] + counts['frames pending'])
-    values = np.array([m for _, m in rss if m is not None])
-    warm = values[len(values) // 5:] if len(values) >= 5 else values     # after 20 %: warm-up
-    figures['rss_mb'] = dict(start=round(float(values[0]), 1), after_warmup=round(
-        float(warm[0]), 1), max=round(float(values.max()), 1), end=round(float(values[-1]), 1),
-        growth_after_warmup=round(float(warm.max() - warm[0]), 1),
-        samples=[(t, round(m, 1)) for t, m in rss[::max(1, len(rss) // 60)] if m is not None])
+    figures['rss_mb'] = memory_figures([r for r in rss if r[1] is not None], window + context)
     if record:
         topics = bag.topics(tmp / 'recording')
         figures['recorded'] = {t.rsplit('/', 1)[-1]: n for t, (_, n) in topics.items()}
@@ -152,14 +189,16 @@ def main(argv=None):
     parser.add_argument('--seconds', type=float, default=600.0)
     parser.add_argument('--points', type=int, default=30_000)
     parser.add_argument('--rate', type=float, default=30.0)
-    parser.add_argument('--solver', choices=('rigid', 'grassmann'), default='rigid')
+    parser.add_argument('--solver', choices=('rigid', 'grassmann'), default='grassmann')
+    parser.add_argument('--context', type=int, default=None,
+                        help='context_frames (default: 0 rigid, the node default grassmann)')
     parser.add_argument('--window', type=int, default=30)
     parser.add_argument('--stride', type=int, default=10)
     parser.add_argument('--no-record', dest='record', action='store_false')
     parser.add_argument('--key', default='load', help='key in reliability.json (load)')
     args = parser.parse_args(argv)
     figures = run(args.seconds, args.points, args.rate, args.solver, args.window, args.stride,
-                  args.record)
+                  args.record, context=args.context)
     save(figures, args.key)
     print(json.dumps({k: v for k, v in figures.items() if k != 'rss_mb'}, indent=1))
     print('rss_mb', {k: v for k, v in figures.get('rss_mb', {}).items() if k != 'samples'})
