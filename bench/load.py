@@ -80,8 +80,9 @@ def memory_figures(samples, warm_frames, warm_solves=2):
     second. Warm-up ends at the first sample with ``warm_frames`` messages received (the
     pipeline's buffers full: window + context frames) and ``warm_solves`` windows solved (the
     solver's working set and the kept previous solution allocated); 'growth_after_warmup' is
-    the largest RSS after it minus the RSS at it, 'slope_mb_per_min' a least-squares line
-    through the samples after it (a leak of a frame per message shows as a steady slope)."""
+    the largest RSS after it minus the RSS at it (with the real solver this is its working
+    set coming and going), 'slope_mb_per_min' a least-squares line through the samples after
+    it and 'mean_per_minute' (a leak of a frame per message shows as a steady slope)."""
     rss = np.array([m for _, m, _, _ in samples], dtype=float)
     t = np.array([s[0] for s in samples], dtype=float)
     warm = next((i for i, (_, _, n, k) in enumerate(samples)
@@ -97,6 +98,9 @@ def memory_figures(samples, warm_frames, warm_solves=2):
                    growth_after_warmup=round(float(after.max() - after[0]), 1))
         if after.size >= 3:
             out['slope_mb_per_min'] = round(float(np.polyfit(t[warm:], after, 1)[0] * 60), 2)
+    minutes = (t // 60).astype(int)
+    out['mean_per_minute'] = [round(float(rss[minutes == m].mean()), 1)
+                              for m in np.unique(minutes)]
     return out
 
 
