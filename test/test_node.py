@@ -163,7 +163,9 @@ def test_bad_input_is_logged_once_and_good_frames_still_published(node_process):
         elif kind:
             messages.append(malformed(good, kind))  # same stamp, broken: dropped first
     publish_at_30hz(feeder, messages)
-    assert feeder.wait_for(lambda: len(feeder.points) >= 105, 60), log.read_text()
+    # on failure: what arrived and the node's counts (lost frames = skipped windows under load)
+    assert feeder.wait_for(lambda: len(feeder.points) >= 105, 60), (
+        len(feeder.points), feeder.diagnostic_values(), log.read_text())
     time.sleep(0.3)
     assert sorted(stamp_of(m) for m in feeder.points) == [stamp_of(header(f))
                                                           for f in range(105)]
