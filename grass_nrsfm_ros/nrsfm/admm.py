@@ -209,7 +209,7 @@ import numpy as np
 from . import grassmann as gm
 from .measurement import (centre, from_frames, InvalidInputError, track_scale,
                           validate_rotations, validate_shapes, validate_tracks)
-from .priors import rigid_depth, smoothness_weight, TemporalSmoothness
+from .priors import smoothness_weight, TemporalSmoothness
 
 
 @dataclass
@@ -328,9 +328,6 @@ class GrassmannNRSfM:
                        'roughness of the tracks (priors.smoothness_weight); 0 = off; used in '
                        'cold solves only (not when initial shapes are given)',
                        'float >= 0'),
-        'rigid_depth': ('weight of (mu/2)||z - z_rigid||^2 pulling the camera-frame depths '
-                        'towards those of the rigid (Tomasi-Kanade) shape, on unit-RMS tracks; '
-                        '0 = off; cold solves only', 'float >= 0'),
         'lambda1': ('weight of the spatial self-expression error ||T_s - T_s C_s||^2',
                     'float >= 0'),
         'lambda2': ('weight of the temporal self-expression error ||T_t - T_t C_t||^2',
@@ -364,7 +361,7 @@ class GrassmannNRSfM:
         'random_state': ('seed for k-means++ grouping (and the rotation step)', 'int or None'),
     }
 
-    def __init__(self, gamma=1e-3, smoothness=1e-4, rigid_depth=0.0, lambda1=1.0, lambda2=1.0, lambda3=0.1,
+    def __init__(self, gamma=1e-3, smoothness=1e-4, lambda1=1.0, lambda2=1.0, lambda3=0.1,
                  lambda4=0.1, K_rot='auto', K_s='auto', K_t='auto', N_s='auto', N_t='auto',
                  sigma_eps=4.0, affinity_min=0.5, regroup_every=10, zeta_weight=1.0,
                  power_steps=1, delta=1e-8, rho=1.2, beta0=1e-3, beta_max=1e6,
@@ -372,7 +369,6 @@ class GrassmannNRSfM:
                  random_state=0):
         self.gamma = gamma
         self.smoothness = smoothness
-        self.rigid_depth = rigid_depth
         self.lambda1 = lambda1
         self.lambda2 = lambda2
         self.lambda3 = lambda3
@@ -420,7 +416,7 @@ class GrassmannNRSfM:
     # validation ------------------------------------------------------------------------------
     def _validated(self):
         p = {}
-        for name in ('gamma', 'smoothness', 'rigid_depth', 'lambda1', 'lambda2', 'lambda3', 'lambda4', 'delta',
+        for name in ('gamma', 'smoothness', 'lambda1', 'lambda2', 'lambda3', 'lambda4', 'delta',
                      'eps'):
             p[name] = _positive(name, getattr(self, name), allow_zero=True)
         for name in ('sigma_eps', 'beta0', 'beta_max', 'warm_beta0'):
@@ -700,10 +696,7 @@ class _State:
         # the smoothness prior serves cold solves; a warm start (initial shapes: the sliding
         # window) already carries the earlier solution, and there the prior cost accuracy
         # (streamed bending 60 x 400: 0.1715 without, 0.2490 with smoothness 1e-4)
-        self.mu = p['rigid_depth'] if not warm else 0.0
-        self.depth0 = (rigid_depth(Wn, R)[:, None, self.order].astype(dt) if self.mu > 0
-                       else None)
-        self.smoother = (TemporalSmoothness(R, smoothness_weight(Wn, p['smoothness']), self.mu)
+        self.smoother = (TemporalSmoothness(R, smoothness_weight(Wn, p['smoothness']))
                          if p['smoothness'] > 0 and not warm else None)
         self.s_bases = self._spatial_bases_exact()
         self.t_edges = gm.contiguous_blocks(F, K_t)
@@ -748,10 +741,9 @@ class _State:
         self.order = self.order[perm]
         self.s_edges = np.searchsorted(self.labels, np.arange(self.K_s + 1))
         self.blocks = column_blocks(self.s_edges, self.width)
-        for name in ('W', 'S', 'Ssh', 'Y1', 'depth0'):
+        for name in ('W', 'S', 'Ssh', 'Y1'):
             arr = getattr(self, name)
-            if arr is not None:
-                arr[...] = arr[:, :, perm]
+            arr[...] = arr[:, :, perm]
         self.s_bases = self._spatial_bases_exact()
 
     def _update_group_basis(self, k):
@@ -774,17 +766,14 @@ class _State:
         F, n = self.F, cols.stop - cols.start
         if self.smoother is not None:     # frames coupled: one banded solve (priors.py)
             rhs = self.Ssh[:, :, cols].astype(np.float64) * beta + self.Y1[:, :, cols]
-            depth = None if self.depth0 is None else self.depth0[:, :, cols].astype(np.float64)
             self.S[:, :, cols] = self.smoother.solve(self.W[:, :, cols].astype(np.float64),
-                                                     rhs, beta, depth)
+                                                     rhs, beta)
             return
         rhs = np.multiply(self.Ssh[:, :, cols], self.dtype(beta),
                           out=self.buffers[0].view(F, 3, n))
         rhs += self.Y1[:, :, cols]
         cam = np.matmul(self.Rs, rhs, out=self.buffers[1].view(F, 3, n))
         cam[:, :2, :] += self.W[:, :, cols]
-        if self.depth0 is not None:
-            cam[:, 2:, :] += self.dtype(self.mu) * self.depth0[:, :, cols]
         cam *= scale
         np.matmul(self.Rt, cam, out=self.S[:, :, cols])
 
@@ -818,7 +807,7 @@ class _State:
         """Sweep 1. Returns ``(G: (F, F), ||W - R S||^2, t)``."""
         F = self.F
         c = 1.0 / (1.0 + beta)
-        scale = np.array([c, c, 1.0 / (beta + self.mu)], dtype=self.dtype)[None, :, None]
+        scale = np.array([c, c, 1.0 / beta], dtype=self.dtype)[None, :, None]
         spatial = self.p['spatial']
         G, data = np.zeros((F, F)), 0.0
         if regroup:

@@ -33,13 +33,12 @@ class TemporalSmoothness:
     ``R: (F, 3, 3)`` world->camera, ``lam``: absolute weight on unit-RMS tracks.
     """
 
-    def __init__(self, R, lam, depth_weight=0.0):
+    def __init__(self, R, lam):
         F = R.shape[0]
-        self.F, self.lam, self.mu = F, float(lam), float(depth_weight)
+        self.F, self.lam = F, float(lam)
         self.R = R
-        # data part, lower banded: A[3f+i, 3f+j] = (R_f^T diag(1, 1, mu) R_f)[i, j] for i >= j
-        weights = np.array([1.0, 1.0, self.mu])
-        data = np.einsum('fki,k,fkj->fij', R, weights, R)
+        # data part, lower banded: A[3f+i, 3f+j] = (R_f^T P R_f)[i, j] for i >= j
+        data = np.einsum('fki,fkj->fij', R[:, :2, :], R[:, :2, :])
         ab = np.zeros((HALF_BANDWIDTH + 1, 3 * F))
         for i in range(3):
             for j in range(i + 1):
@@ -60,16 +59,13 @@ class TemporalSmoothness:
             self._beta = beta
         return self._factor
 
-    def solve(self, W, rhs_world, beta, depth=None):
+    def solve(self, W, rhs_world, beta):
         """S ``(F, 3, P)`` world frame minimising the S-update objective.
 
-        ``W: (F, 2, P)`` unit-RMS centred tracks, ``rhs_world: (F, 3, P)`` = ``beta S# + Y1``,
-        ``depth: (F, 1, P)`` the camera-frame depths the rigid-depth prior pulls towards.
+        ``W: (F, 2, P)`` unit-RMS centred tracks, ``rhs_world: (F, 3, P)`` = ``beta S# + Y1``.
         """
         F, P = self.F, W.shape[2]
         b = rhs_world + np.matmul(self.R[:, :2, :].transpose(0, 2, 1), W)
-        if depth is not None and self.mu > 0:
-            b += np.matmul(self.R[:, 2:, :].transpose(0, 2, 1), self.mu * depth)
         x = cho_solve_banded((self._factor_for(beta), True), b.reshape(3 * F, P),
                              overwrite_b=True, check_finite=False)
         return x.reshape(F, 3, P)
@@ -97,20 +93,3 @@ def smoothness_weight(Wn, relative):
     the roughness of the observed tracks, so that the prior costs ``relative`` times the data
     energy on shapes exactly as rough as the image tracks."""
     return relative / max(track_roughness(Wn), 1e-12)
-
-
-def rigid_depth(Wn, R):
-    """Camera-frame depths ``(F, P)`` of the rigid (Tomasi-Kanade) shape of ``Wn: (2F, P)``,
-    with the sign (the orthographic depth reversal) that makes the world shapes ``R_f^T
-    [W_f; z_f]`` of ``R: (F, 3, 3)`` of the smaller nuclear norm."""
-    from .rotation import rigid_factorisation
-    F, P = R.shape[0], Wn.shape[1]
-    z = rigid_factorisation(Wn)[1].reshape(F, 3, P)[:, 2, :]
-    z = z - z.mean(axis=1, keepdims=True)
-    cams = R.transpose(0, 2, 1)
-    inplane = np.matmul(cams[:, :, :2], Wn.reshape(F, 2, P))
-
-    def nuclear(depth):
-        X = (inplane + cams[:, :, 2:] * depth[:, None, :]).reshape(F, 3 * P)
-        return np.sqrt(np.maximum(np.linalg.eigvalsh(X @ X.T), 0.0)).sum()
-    return z if nuclear(z) <= nuclear(-z) else -z
