@@ -181,6 +181,47 @@ Tried and NOT adopted (no general gain):
   show more kinds worse than rigid with the defaults (bending orbit/shaky seeds 1, 2:
   0.167-0.175 vs rigid 0.134-0.147; articulated orbit/shaky seed 2: 0.142-0.144 vs 0.118).
 * Warm start from the rigid shape: shark 0.051 (warm_beta0 = 1) but pickup 0.26, face 0.23.
+* Rigid-depth prior (branch accuracy3, commit f428af5, reverted): ``(mu/2)||z - z_rigid||^2`` on
+  the camera-frame depths towards the Tomasi-Kanade shape's (sign by the smaller nuclear norm
+  of S#; closed form in the per-frame update, ``R^T diag(1, 1, mu) R`` in the banded one).
+  60 x 2000, mu = 0 / 1e-3 / 1e-2 / 1e-1: waving-orbit seed 1 0.230 / 0.204 / 0.179 / 0.170
+  (rigid 0.178), bending-orbit seed 1 0.173 / 0.158 / 0.147 / 0.145 (rigid 0.149), dense face
+  seed 2 0.052 / 0.048 / 0.038 / 0.037, shark 0.089 / 0.072 / 0.040 / 0.048, but pickup 0.016 /
+  0.021 / 0.121 / 0.235 and face seed 0 0.046 / 0.046 / 0.084 / 0.108. At mu = 1e-2 on 54 cases
+  (6 mocap, 5 kinds x orbit/wobble/shaky x seeds 0-2 at 60 x 500, faces 99 x 2000 seeds 0-2):
+  geometric mean 1.57x the default, worse on 38, worse than rigid on 10 (default: 12); wobble
+  sequences blow up (rigid depth meaningless at a few degrees: bending-wobble 0.14 -> 1.84).
+  No GT-free weight rule found: the rigid residual of W (rank-3 tail energy: pickup 1.3e-2,
+  shark 9.3e-3, waving 5.1e-3, face 0 1.7e-3, face 2 6.2e-4) and the prior's nuclear-norm
+  cost (+10% on both waving, where it helps, and pickup, where it hurts) do not separate the
+  sequences that want it.
+* Tomasi-Kanade rotations in place of Dai's (WarmStart(R=rigid R)), same 54 cases: bending
+  orbit/shaky seeds 1-2 beat rigid (e.g. orbit seed 1 0.181 -> 0.135, rigid 0.146), waving 0.25
+  -> 0.19 (still > rigid 0.17), face 2 0.052 -> 0.042, shark 0.089 -> 0.072, but mocap collapses
+  (pickup 0.016 -> 0.145, yoga 0.016 -> 0.280, drink 0.007 -> 0.063) and twisting/articulated
+  regress: geometric mean 1.23x, worse on 31.
+Diagnosis of the remaining failures (branch accuracy3; 60 x 2000, GT rotations unless said).
+  Waving is (near) unidentifiable for a low-rank shape prior, not a solver or metric bug: the
+  metric is right (negated GT depth scores 0.0: reflection allowed), GT S# has rank 7 (singular
+  values 1, .18, .16, .066, .033, .007, .005 of the first), W rank 8; the oracle rank-r
+  projections of GT S# give 0.206 / 0.141 / 0.053 / 0.026 / 0.004 (r = 1, 2, 3, 4, 6) while
+  every estimate with GT R stays near the rigid mean: pinv-style mean world shape 0.207, BMM
+  0.215, ours none / spatial / temporal / both 0.214 / 0.214 / 0.216 / 0.215 (smoothness 1e-4:
+  0.203 / 0.203 / 0.205 / 0.205); rigid (TK, its own R) 0.172. The GT S# has a LARGER nuclear
+  norm (358) than BMM's (295), and an exact rank-7 S# (relative residual 7e-6, found by LM on
+  the rank-7 factorisation from BMM's depths) lies at e3D 0.213: on the rank-7 manifold the map
+  from depths to its normal space has condition number ~5e4 (2e-5 relative smallest singular
+  value; rank 6: 4e-5). Larger yaw (+-60 / +-90 degrees, GT R) does not rescue it (ours 0.149 /
+  0.189 vs rigid 0.188 / 0.205). Dai's rotations add to it (K=3: 22 degrees, 0.256; K=1 0.213;
+  TK R 0.192). TK beats everything because, with per-frame Procrustes, its rigid shape is the
+  best rigid fit per frame; its depths (error 0.196 of the shape norm, seed 1) beat our
+  nuclear-norm depths (0.315); [W_f; z_rigid_f] scores 0.172 vs rigid 0.178.
+  Bending seed 1 is a rotation problem: with GT R ours gives 0.098 (BMM 0.107, rigid 0.149),
+  W has rank 18, the depth map is better conditioned (3.7e-4); Dai's rotations are 10-44
+  degrees off at every K (K = 1..5: ours 0.161 / 0.163 / 0.166 / 0.173 (chosen) / 0.183), TK's
+  10 degrees (ours 0.137).
+  Dense face seed 2 (shaky, little deformation): the same pattern as waving in small: the
+  rigid-depth prior at mu = 3e-2 gives 0.036 (default 0.052, rigid 0.057), GT R no better.
 Diagnosis. Shark: W has rank 5; K_rot = 2 rotations are exact (residual 8.6e-9; the GT
   shapes rotated by them give a world S# of rank 3, singular values 1, 0.14, 0.08), so the
   error is the shape step: minimum-nuclear-norm depths are not the rank-3 GT depths (ALS at
