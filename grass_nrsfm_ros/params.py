@@ -141,7 +141,7 @@ def solver_params(cls=None):
         rng = _range_of(constraint) if kind in (int, float) else None
         if rng is not None and kind is int:
             rng = (int(rng[0]), int(min(rng[1], 2**31 - 1)))
-        choices = ('auto',) if 'auto' in constraint else None
+        choices = tuple(re.findall(r"'(\w+)'", constraint)) or None    # quoted words
         out.append(ParamSpec(SOLVER_PREFIX + name, default, kind,
                              f'{description} [{constraint}]', range=rng, choices=choices))
     return tuple(out)
