@@ -334,7 +334,7 @@ class SlidingWindow:
         """What ``window`` is solved as: its context frames (newest first dropped last) then its
         own frames, on the tracks common to all of them. Context frames are dropped, oldest
         first, while the common tracks are fewer than ``CONTEXT_TRACKS`` of the window's."""
-        context = window.context[len(window.context) - self.context_frames:] \
+        context = window.context[max(0, len(window.context) - self.context_frames):] \
             if self.context_frames else ()
         ids = window.ids
         kept = 0

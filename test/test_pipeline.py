@@ -271,6 +271,16 @@ def test_context_frames_dropped_when_they_share_too_few_tracks():
     assert [r.stamp_ns for r in p.solve(windows[0]) + p.solve(windows[1])] == list(range(40))
 
 
+def test_every_context_frame_is_used_while_fewer_than_context_frames():
+    W, S, ids = make_sequence(F=60, P=100)
+    p = pipeline(context_frames=30)
+    windows = [w for f, (fid, uv) in enumerate(frames_of(W, ids)) for w in p.add_frame(f, fid, uv)]
+    # windows 0..29, 10..39, 20..49, 30..59: 0, 10, 20 and 30 earlier frames, all solved again
+    # (a negative slice start once kept only the newest 10 of 20)
+    assert [p._problem(w).n_context for w in windows] == [0, 10, 20, 30]
+    np.testing.assert_array_equal(p._problem(windows[2]).stamps, np.arange(50))
+
+
 def test_warm_start_fills_new_tracks_from_nearest_old_track():
     W, S, ids = make_sequence(F=40, P=300, noise=0.0)
     seen = []
