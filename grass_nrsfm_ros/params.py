@@ -69,14 +69,17 @@ NODE_PARAMS = (
     ParamSpec('min_tracks', 10, int,
               'Fewest tracks a frame must have; a frame sharing fewer ids than this with the '
               'previous frame starts a new sequence (all ids changed).', range=(4, 10000000)),
-    ParamSpec('warm_start', True, bool,
-              "Start each window's solve from the previous window's solution on the overlap."),
+    ParamSpec('warm_start', False, bool,
+              "Start each window's solve from the previous window's solution on the overlap "
+              '(fewer iterations, but the start holds on to earlier errors: streaming e3D '
+              'worse on 5 of 6 sequences). Off: each window with context frames is solved from '
+              "the solver's own rotations and shapes, a window alone from the rigid "
+              'factorisation.'),
     ParamSpec('context_frames', 60, int,
-              'Earlier frames solved again with each window (warm-started from their last '
-              'solution, not republished): the shape prior sees window + context frames. 0: '
-              'the window alone.', range=(0, 100000)),
+              'Earlier frames solved again with each window (not republished): the shape '
+              'prior sees window + context frames. 0: the window alone.', range=(0, 100000)),
     ParamSpec('warm_rotations', 'solver', str,
-              "Rotations of a warm-started solve: 'solver' (previous ones fixed, new ones from "
+              "Rotations of a warm-started solve (warm_start on): 'solver' (previous ones fixed, new ones from "
               "the solver's estimate), 'refine' (Dai's over all frames, aligned to the previous "
               "solution: slightly more accurate, one more rotation estimate per window), 'fit' "
               '(previous ones; new frames fitted to the previous shape: cheapest, good on dense '

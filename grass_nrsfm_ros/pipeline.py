@@ -169,7 +169,7 @@ class SlidingWindow:
     """
 
     def __init__(self, solver_factory=None, *, window_size=30, window_stride=10, min_tracks=10,
-                 warm_start=True, align_windows=True, metres_per_pixel=1.0,
+                 warm_start=False, align_windows=True, metres_per_pixel=1.0,
                  context_frames=60, warm_rotations='solver', warm_start_class=None):
         if not MIN_WINDOW_FRAMES <= window_size:
             raise ValueError(f'window_size={window_size}: at least {MIN_WINDOW_FRAMES} frames')
@@ -300,7 +300,8 @@ class SlidingWindow:
                               f'{window.ids.size} tracks (< min_tracks={self.min_tracks})')
         problem = self._problem(window)
         Wc, _ = centre(problem.W)
-        init = self._warm_start_for(problem, Wc) if self.warm_start else None
+        init = self._warm_start_for(problem, Wc) if self.warm_start else \
+            self._cold_start_for(problem)
         solver = self.solver_factory()
         kwargs = {} if init is None else {'init': init}
         if progress is not None and _takes_progress(solver.fit):
@@ -470,6 +471,15 @@ class SlidingWindow:
         Q = aligned[-1]                     # D I D = I: the probe is Q for either twin
         twins = (est @ Q, DEPTH_FLIP @ est @ DEPTH_FLIP @ Q)
         return min(twins, key=lambda t: np.linalg.norm(t[known] - R[known]))
+
+    def _cold_start_for(self, problem):
+        """Start of a problem solved without the previous solution (``warm_start`` off): the
+        rigid factorisation when it has no context frames (the first window of a sequence, or
+        ``context_frames`` 0), else None (the solver's own rotations and shapes)."""
+        cls = self._warm_start_class or _warm_start_class()
+        if cls is None or problem.n_context:
+            return None
+        return self._rigid_start(problem.W, cls)
 
     @staticmethod
     def _rigid_start(W, cls):
