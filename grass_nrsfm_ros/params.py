@@ -78,6 +78,11 @@ NODE_PARAMS = (
     ParamSpec('context_frames', 60, int,
               'Earlier frames solved again with each window (not republished): the shape '
               'prior sees window + context frames. 0: the window alone.', range=(0, 100000)),
+    ParamSpec('key_frames', 30, int,
+              'Older frames (beyond context_frames) also solved again with each window, spread '
+              'evenly over the sequence so far: they keep the shape prior of long sequences '
+              '(Torresani face streaming e3D 0.063 -> 0.060). 0: none; unused when '
+              'context_frames is 0.', range=(0, 100000)),
     ParamSpec('warm_rotations', 'solver', str,
               "Rotations of a warm-started solve (warm_start on): 'solver' (previous ones fixed, new ones from "
               "the solver's estimate), 'refine' (Dai's over all frames, aligned to the previous "
@@ -237,7 +242,7 @@ def solver_kwargs(config):
 def window_kwargs(config):
     """SlidingWindow's keyword arguments from a config dict."""
     keys = ('window_size', 'window_stride', 'min_tracks', 'warm_start', 'align_windows',
-            'context_frames', 'warm_rotations')
+            'context_frames', 'warm_rotations', 'key_frames')
     return {k: config[k] for k in keys if k in config}
 
 

@@ -56,6 +56,22 @@ WARM_ROTATIONS = ('solver', 'fit', 'refine')
 DEPTH_FLIP = np.diag([1.0, 1.0, -1.0])
 
 
+class KeyFrames:
+    """At most ``size`` frames spread evenly over a stream of older frames: every ``step``-th
+    one is kept, and ``step`` doubles (every other kept frame dropped) when they overflow."""
+
+    def __init__(self, size):
+        self.size, self.step, self.seen, self.frames = size, 1, 0, []
+
+    def extend(self, frames):
+        for frame in frames:
+            if self.size and self.seen % self.step == 0:
+                self.frames.append(frame)
+                if len(self.frames) > self.size:
+                    self.frames, self.step = self.frames[::2], 2 * self.step
+            self.seen += 1
+
+
 class FrameError(ValueError):
     """A frame that was refused (the message says why); the pipeline state is unchanged."""
 
@@ -78,8 +94,9 @@ class Frame:
 class Window:
     """A window ready to solve: ``W: (2F, P)`` pixels of the ``ids: (P,)`` common tracks over
     frames ``stamps: (F,)`` (ascending); ``closed_at``: ``time.monotonic()`` when it closed;
-    ``context``: the earlier Frames of its sequence (oldest first, at most ``context_frames``)
-    solved with it but not published by it."""
+    ``context``: the earlier Frames of its sequence solved with it but not published by it
+    (oldest first: up to ``key_frames`` spread evenly over the older past, then the newest
+    ``context_frames``)."""
 
     sequence: int
     index: int
@@ -170,7 +187,8 @@ class SlidingWindow:
 
     def __init__(self, solver_factory=None, *, window_size=30, window_stride=10, min_tracks=10,
                  warm_start=False, align_windows=True, metres_per_pixel=1.0,
-                 context_frames=60, warm_rotations='solver', warm_start_class=None):
+                 context_frames=60, warm_rotations='solver', warm_start_class=None,
+                 key_frames=30):
         if not MIN_WINDOW_FRAMES <= window_size:
             raise ValueError(f'window_size={window_size}: at least {MIN_WINDOW_FRAMES} frames')
         if not 1 <= window_stride <= window_size:
@@ -178,10 +196,13 @@ class SlidingWindow:
                              f'({window_size})')
         if context_frames < 0:
             raise ValueError(f'context_frames={context_frames}: must be >= 0')
+        if key_frames < 0:
+            raise ValueError(f'key_frames={key_frames}: must be >= 0')
         if warm_rotations not in WARM_ROTATIONS:
             raise ValueError(f'warm_rotations={warm_rotations!r}: one of {WARM_ROTATIONS}')
         self.solver_factory = solver_factory or default_solver_factory()
         self.context_frames, self.warm_rotations = int(context_frames), warm_rotations
+        self.key_frames = int(key_frames) if self.context_frames else 0
         self.window_size, self.window_stride = int(window_size), int(window_stride)
         self.min_tracks = int(min_tracks)
         self.warm_start, self.align_windows = bool(warm_start), bool(align_windows)
@@ -189,6 +210,7 @@ class SlidingWindow:
         self._warm_start_class = warm_start_class
         self._frames = []               # buffered Frames, ascending stamps
         self._history = deque(maxlen=max(self.context_frames, 1))   # Frames that left _frames
+        self._keys = KeyFrames(self.key_frames)     # older Frames, thinned evenly
         self._sequence = 0
         self._window_index = 0
         self._emitted_until = None      # newest stamp of the last emitted window
@@ -209,6 +231,7 @@ class SlidingWindow:
             windows += self.flush()
             self._frames = []
             self._history.clear()
+            self._keys = KeyFrames(self.key_frames)
             self._sequence += 1
             self._emitted_until = None          # a new sequence's stamps may start earlier
             self._count('resets')
@@ -217,7 +240,11 @@ class SlidingWindow:
         self._count('frames')
         if len(self._frames) >= self.window_size:
             windows.append(self._emit(self._frames[:self.window_size]))
-            self._history.extend(self._frames[:self.window_stride])
+            leaving = self._frames[:self.window_stride]
+            spill = len(self._history) + len(leaving) - self._history.maxlen
+            if self.context_frames and spill > 0:
+                self._keys.extend((list(self._history) + leaving)[:spill])
+            self._history.extend(leaving)
             self._frames = self._frames[self.window_stride:]
         return windows
 
@@ -279,7 +306,8 @@ class SlidingWindow:
             if self._emitted_until is None or s > self._emitted_until:
                 self._unpublished.append((self._sequence, int(s)))
         self._emitted_until = int(stamps[-1])
-        context = tuple(f for f in self._history if f.stamp_ns < stamps[0]) \
+        context = tuple(f for f in self._keys.frames + list(self._history)
+                        if f.stamp_ns < stamps[0]) \
             if self.context_frames else ()
         window = Window(self._sequence, self._window_index, stamps,
                         tuple(f.frame_id for f in frames), common, W, time.monotonic(),
@@ -335,7 +363,8 @@ class SlidingWindow:
         """What ``window`` is solved as: its context frames (newest first dropped last) then its
         own frames, on the tracks common to all of them. Context frames are dropped, oldest
         first, while the common tracks are fewer than ``CONTEXT_TRACKS`` of the window's."""
-        context = window.context[max(0, len(window.context) - self.context_frames):] \
+        limit = self.context_frames + self.key_frames
+        context = window.context[max(0, len(window.context) - limit):] \
             if self.context_frames else ()
         ids = window.ids
         kept = 0
