@@ -69,26 +69,28 @@ NODE_PARAMS = (
     ParamSpec('min_tracks', 10, int,
               'Fewest tracks a frame must have; a frame sharing fewer ids than this with the '
               'previous frame starts a new sequence (all ids changed).', range=(4, 10000000)),
-    ParamSpec('warm_start', False, bool,
-              "Start each window's solve from the previous window's solution on the overlap "
-              '(fewer iterations, but the start holds on to earlier errors: streaming e3D '
-              'worse on 5 of 6 sequences). Off: each window with context frames is solved from '
-              "the solver's own rotations and shapes, a window alone from the rigid "
+    ParamSpec('warm_start', True, bool,
+              "Start each window's solve from the previous window's solution on the overlap. "
+              "Off: a window with context frames is solved from the solver's own start (more "
+              'accurate on 5 of 6 measured sequences, e.g. pickup 0.059 -> 0.037, but worse on '
+              'synthetic bending and ~1.7x the CPU per window), a window alone from the rigid '
               'factorisation.'),
     ParamSpec('context_frames', 60, int,
               'Earlier frames solved again with each window (not republished): the shape '
               'prior sees window + context frames. 0: the window alone.', range=(0, 100000)),
-    ParamSpec('key_frames', 30, int,
+    ParamSpec('key_frames', 0, int,
               'Older frames (beyond context_frames) also solved again with each window, spread '
-              'evenly over the sequence so far: they keep the shape prior of long sequences '
-              '(Torresani face streaming e3D 0.063 -> 0.060). 0: none; unused when '
-              'context_frames is 0.', range=(0, 100000)),
+              'evenly over the sequence so far. With warm_start off, 30 keeps the shape prior '
+              'of long sequences (Torresani face streaming e3D 0.063 -> 0.060); with the warm '
+              'start it did not help (0.080 -> 0.083). 0: none; unused when context_frames is '
+              '0.', range=(0, 100000)),
     ParamSpec('warm_rotations', 'solver', str,
-              "Rotations of a warm-started solve (warm_start on): 'solver' (previous ones fixed, new ones from "
-              "the solver's estimate), 'refine' (Dai's over all frames, aligned to the previous "
-              "solution: slightly more accurate, one more rotation estimate per window), 'fit' "
-              '(previous ones; new frames fitted to the previous shape: cheapest, good on dense '
-              'surfaces, poor on sparse mocap).', choices=('refine', 'fit', 'solver')),
+              "Rotations of a warm-started solve (warm_start on): 'solver' (previous ones "
+              "fixed, new ones from the solver's estimate), 'refine' (Dai's over all frames, "
+              'aligned to the previous solution: slightly more accurate, one more rotation '
+              "estimate per window), 'fit' (previous ones; new frames fitted to the previous "
+              'shape: cheapest, good on dense surfaces, poor on sparse mocap).',
+              choices=('refine', 'fit', 'solver')),
     ParamSpec('align_windows', True, bool,
               "Flip each window's depth to agree with the previous window on the overlap, so "
               'published clouds keep one orientation over time.'),

@@ -186,9 +186,9 @@ class SlidingWindow:
     """
 
     def __init__(self, solver_factory=None, *, window_size=30, window_stride=10, min_tracks=10,
-                 warm_start=False, align_windows=True, metres_per_pixel=1.0,
+                 warm_start=True, align_windows=True, metres_per_pixel=1.0,
                  context_frames=60, warm_rotations='solver', warm_start_class=None,
-                 key_frames=30):
+                 key_frames=0):
         if not MIN_WINDOW_FRAMES <= window_size:
             raise ValueError(f'window_size={window_size}: at least {MIN_WINDOW_FRAMES} frames')
         if not 1 <= window_stride <= window_size:
