@@ -30,7 +30,7 @@ import time
 
 import numpy as np
 
-from grass_nrsfm_ros.cloud import (CloudError, decode_points, decode_tracks, DTYPE_TO_DATATYPE,
+from grass_nrsfm_ros.cloud import (cloud_layout, CloudError, decode_points, decode_tracks,
                                    points_array, tracks_array)
 
 TRACKS_TOPIC = '/tracks'
@@ -87,25 +87,15 @@ def stamp_ns(stamp):
 def cloud_cdr(arr, stamp, frame_id):
     """CDR bytes of a PointCloud2 (unordered, little-endian) holding structured ``arr: (N,)``.
 
-    Built with rosbags' Jazzy types, so offline tools need no ROS install; the layout is that
-    of :func:`grass_nrsfm_ros.cloud.to_pointcloud2`.
+    Built with rosbags' Jazzy types, so offline tools need no ROS install; the layout is
+    :func:`grass_nrsfm_ros.cloud.cloud_layout`, as in the node's messages.
     """
     store = typestore()
     t = store.types
-    arr = np.ascontiguousarray(arr)
-    fields = [t['sensor_msgs/msg/PointField'](
-        name=name, offset=arr.dtype.fields[name][1],
-        datatype=DTYPE_TO_DATATYPE[arr.dtype.fields[name][0].newbyteorder('=')], count=1)
-        for name in arr.dtype.names]
-    finite = all(np.isfinite(arr[n]).all() for n in arr.dtype.names
-                 if arr.dtype.fields[n][0].kind == 'f')
     sec, nanosec = divmod(int(stamp), 1_000_000_000)
     header = t['std_msgs/msg/Header'](
         stamp=t['builtin_interfaces/msg/Time'](sec=sec, nanosec=nanosec), frame_id=frame_id)
-    msg = t[POINTCLOUD2](
-        header=header, height=1, width=arr.size, fields=fields, is_bigendian=False,
-        point_step=arr.dtype.itemsize, row_step=arr.dtype.itemsize * arr.size,
-        data=arr.view(np.uint8).reshape(-1), is_dense=bool(finite))
+    msg = t[POINTCLOUD2](header=header, **cloud_layout(arr, t['sensor_msgs/msg/PointField']))
     return bytes(store.serialize_cdr(msg, POINTCLOUD2))
 
 

@@ -163,21 +163,30 @@ def points_array(xyz, ids):
     return arr
 
 
-def to_pointcloud2(arr, header):
-    """sensor_msgs/PointCloud2 (unordered, little-endian) holding structured ``arr: (P,)``."""
-    from sensor_msgs.msg import PointCloud2, PointField
-
+def cloud_layout(arr, point_field):
+    """PointCloud2 keyword arguments (all but ``header``) for structured ``arr: (P,)``:
+    unordered (height 1), little-endian, one PointField per dtype field made by
+    ``point_field(name=, offset=, datatype=, count=)`` (rclpy's or rosbags' class), ``data``
+    the array's bytes, ``is_dense`` True when every float is finite."""
     arr = np.ascontiguousarray(arr)
-    fields = [PointField(name=name, offset=arr.dtype.fields[name][1],
-                         datatype=DTYPE_TO_DATATYPE[arr.dtype.fields[name][0].newbyteorder('=')],
-                         count=1)
+    fields = [point_field(name=name, offset=arr.dtype.fields[name][1],
+                          datatype=DTYPE_TO_DATATYPE[arr.dtype.fields[name][0].newbyteorder('=')],
+                          count=1)
               for name in arr.dtype.names]
     finite = all(np.isfinite(arr[n]).all() for n in arr.dtype.names
                  if arr.dtype.fields[n][0].kind == 'f')
-    return PointCloud2(header=header, height=1, width=arr.size, fields=fields,
-                       is_bigendian=False, point_step=arr.dtype.itemsize,
-                       row_step=arr.dtype.itemsize * arr.size, data=arr.tobytes(),
-                       is_dense=bool(finite))
+    return dict(height=1, width=arr.size, fields=fields, is_bigendian=False,
+                point_step=arr.dtype.itemsize, row_step=arr.dtype.itemsize * arr.size,
+                data=arr.view(np.uint8).reshape(-1), is_dense=bool(finite))
+
+
+def to_pointcloud2(arr, header):
+    """sensor_msgs/PointCloud2 (see :func:`cloud_layout`) holding structured ``arr: (P,)``."""
+    from sensor_msgs.msg import PointCloud2, PointField
+
+    layout = cloud_layout(arr, PointField)
+    layout['data'] = layout['data'].tobytes()
+    return PointCloud2(header=header, **layout)
 
 
 def encode_tracks(ids, uv, header):

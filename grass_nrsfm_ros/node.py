@@ -37,8 +37,7 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header
 
 from grass_nrsfm_ros import cloud, params
-from grass_nrsfm_ros.pipeline import (default_solver_factory, FrameError, SlidingWindow,
-                                      WindowError)
+from grass_nrsfm_ros.pipeline import FrameError, WindowError
 
 POINTCLOUD2 = 'sensor_msgs/msg/PointCloud2'
 LOG_PERIOD_S = 10.0          # the same kind of problem is logged at most once per period
@@ -117,10 +116,8 @@ class ReconstructionNode(Node):
         config = self._declare_parameters()
         self._log = RateLimitedLog(self.get_logger())
         self._configure_blas(config['blas_threads'])
-        factory = solver_factory or default_solver_factory(**params.solver_kwargs(config))
-        self.pipeline = SlidingWindow(factory, warm_start_class=warm_start_class,
-                                      metres_per_pixel=config['metres_per_pixel'],
-                                      **params.window_kwargs(config))
+        self.pipeline = params.make_pipeline(config, solver_factory,
+                                             warm_start_class=warm_start_class)
         self._frame_id = config['frame_id']
         self._counts = dict(messages=0, dropped_messages=0, dropped_windows=0, solve_errors=0)
         self._last_solve = {}

@@ -121,6 +121,15 @@ class RigidALS:
         return SimpleNamespace(S=S, R=R, translation=t, groups=None, report=report)
 
 
+def recording(seen):
+    """A RigidALS solver factory that appends each fit's ``(W, init)`` to ``seen``."""
+    class Recording(RigidALS):
+        def fit(self, W, init=None):
+            seen.append((W, init))
+            return super().fit(W, init)
+    return Recording
+
+
 def pipeline(**kwargs):
     kwargs.setdefault('warm_start_class', RigidWarmStart)
     return SlidingWindow(RigidALS, **kwargs)
@@ -190,22 +199,16 @@ def test_depth_sign_aligned_across_windows(warm_start):
 def test_warm_start_carries_previous_solution_on_overlap():
     W, S, ids = make_sequence(F=40, noise=0.5)
     seen = []
-
-    class Recording(RigidALS):
-        def fit(self, W, init=None):
-            seen.append(init)
-            return super().fit(W, init)
-
-    p = SlidingWindow(Recording, warm_start_class=RigidWarmStart, context_frames=0,
-                      warm_rotations='solver', warm_start=True)
+    p = SlidingWindow(recording(seen), warm_start_class=RigidWarmStart, context_frames=0,
+                      warm_rotations='solver')
     frames = frames_of(W, ids)
     windows = [w for f in range(40) for w in p.add_frame(f, *frames[f])]
     p.solve(windows[0])
     first = p.previous
     p.solve(windows[1])                      # frames 10..39: 10..29 shared
-    init = seen[1]
+    _, init = seen[1]
     # the first window starts from the rigid factorisation, every frame known
-    assert seen[0].known.all() and seen[0].S.shape == (90, 200)
+    assert seen[0][1].known.all() and seen[0][1].S.shape == (90, 200)
     assert init.known.tolist() == [True] * 20 + [False] * 10
     np.testing.assert_allclose(init.R[:20], first.R[10:30])
     np.testing.assert_allclose(init.R[20:], np.repeat(first.R[29:30], 10, axis=0))
@@ -220,14 +223,8 @@ def test_warm_start_carries_previous_solution_on_overlap():
 def test_context_frames_are_solved_again_but_not_republished():
     W, S, ids = make_sequence(F=60, noise=0.5)
     seen = []
-
-    class Recording(RigidALS):
-        def fit(self, W, init=None):
-            seen.append((W, init))
-            return super().fit(W, init)
-
-    p = SlidingWindow(Recording, warm_start_class=RigidWarmStart, context_frames=15,
-                      warm_rotations='fit', warm_start=True, key_frames=0)
+    p = SlidingWindow(recording(seen), warm_start_class=RigidWarmStart, context_frames=15,
+                      warm_rotations='fit', key_frames=0)
     frames = frames_of(W, ids)
     results, contexts = [], []
     for f in range(60):
@@ -300,20 +297,14 @@ def test_key_frames_spread_evenly_over_the_older_past():
 def test_warm_start_fills_new_tracks_from_nearest_old_track():
     W, S, ids = make_sequence(F=40, P=300, noise=0.0)
     seen = []
-
-    class Recording(RigidALS):
-        def fit(self, W, init=None):
-            seen.append(init)
-            return super().fit(W, init)
-
-    p = SlidingWindow(Recording, warm_start_class=RigidWarmStart, context_frames=0,
-                      warm_rotations='solver', warm_start=True)
+    p = SlidingWindow(recording(seen), warm_start_class=RigidWarmStart, context_frames=0,
+                      warm_rotations='solver')
     late = ids[:30]
     for f, (fid, uv) in enumerate(frames_of(W, ids)):
         keep = ~np.isin(fid, late) if f < 5 else np.ones(fid.size, bool)
         for window in p.add_frame(f, fid[keep], uv[keep]):
             p.solve(window)
-    init = seen[1]
+    _, init = seen[1]
     assert init.S.shape[1] == 300 and init.known.sum() == 20
     # the filled-in depth of new tracks is close to the truth (relative to the depth spread)
     order = np.argsort(ids)

@@ -48,9 +48,9 @@ def streaming(seq, tracks_bag, points_bag):
     """Run the node's pipeline over ``tracks_bag`` offline; print the streaming e3D."""
     from grass_nrsfm_ros import bag
     from grass_nrsfm_ros.nrsfm import e3d
-    from grass_nrsfm_ros.pipeline import default_solver_factory, SlidingWindow
+    from grass_nrsfm_ros.params import defaults, make_pipeline
 
-    pipeline = SlidingWindow(default_solver_factory())
+    pipeline = make_pipeline(defaults())
     report = bag.reconstruct_bag(tracks_bag, points_bag, pipeline, progress=None)
     S, ids, _ = bag.read_S(points_bag)
     S_gt = seq.S[:, ids.astype(int)]

@@ -90,17 +90,14 @@ def reconstruct_bag_file(args):
     import shutil
 
     from grass_nrsfm_ros import bag
-    from grass_nrsfm_ros.params import load_config, solver_kwargs, window_kwargs
-    from grass_nrsfm_ros.pipeline import default_solver_factory, SlidingWindow
+    from grass_nrsfm_ros.params import load_config, make_pipeline
 
     config = load_config(args.config) if args.config else {}
     known = bag.topics(args.input)                      # corrupt bags fail here, before output
     if args.topic not in known:
         raise bag.TopicNotFoundError(f'bag {args.input} has no topic {args.topic!r} (topics: '
                                      f'{", ".join(sorted(known)) or "none"})')
-    pipeline = SlidingWindow(default_solver_factory(**solver_kwargs(config)),
-                             **window_kwargs(config),
-                             metres_per_pixel=config.get('metres_per_pixel', 1.0))
+    pipeline = make_pipeline(config)
     out = Path(args.output)
     existed = out.exists()
     try:
