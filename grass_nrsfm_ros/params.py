@@ -70,17 +70,27 @@ NODE_PARAMS = (
               'Fewest tracks a frame must have; a frame sharing fewer ids than this with the '
               'previous frame starts a new sequence (all ids changed).', range=(4, 10000000)),
     ParamSpec('warm_start', True, bool,
-              "Start each window's solve from the previous window's solution on the overlap."),
+              "Start each window's solve from the previous window's solution on the overlap. "
+              "Off: a window with context frames is solved from the solver's own start (more "
+              'accurate on 5 of 6 measured sequences, e.g. pickup 0.059 -> 0.037, but worse on '
+              'synthetic bending and ~1.7x the CPU per window), a window alone from the rigid '
+              'factorisation.'),
     ParamSpec('context_frames', 60, int,
-              'Earlier frames solved again with each window (warm-started from their last '
-              'solution, not republished): the shape prior sees window + context frames. 0: '
-              'the window alone.', range=(0, 100000)),
+              'Earlier frames solved again with each window (not republished): the shape '
+              'prior sees window + context frames. 0: the window alone.', range=(0, 100000)),
+    ParamSpec('key_frames', 0, int,
+              'Older frames (beyond context_frames) also solved again with each window, spread '
+              'evenly over the sequence so far. With warm_start off, 30 keeps the shape prior '
+              'of long sequences (Torresani face streaming e3D 0.063 -> 0.060); with the warm '
+              'start it did not help (0.080 -> 0.083). 0: none; unused when context_frames is '
+              '0.', range=(0, 100000)),
     ParamSpec('warm_rotations', 'solver', str,
-              "Rotations of a warm-started solve: 'solver' (previous ones fixed, new ones from "
-              "the solver's estimate), 'refine' (Dai's over all frames, aligned to the previous "
-              "solution: slightly more accurate, one more rotation estimate per window), 'fit' "
-              '(previous ones; new frames fitted to the previous shape: cheapest, good on dense '
-              'surfaces, poor on sparse mocap).', choices=('refine', 'fit', 'solver')),
+              "Rotations of a warm-started solve (warm_start on): 'solver' (previous ones "
+              "fixed, new ones from the solver's estimate), 'refine' (Dai's over all frames, "
+              'aligned to the previous solution: slightly more accurate, one more rotation '
+              "estimate per window), 'fit' (previous ones; new frames fitted to the previous "
+              'shape: cheapest, good on dense surfaces, poor on sparse mocap).',
+              choices=('refine', 'fit', 'solver')),
     ParamSpec('align_windows', True, bool,
               "Flip each window's depth to agree with the previous window on the overlap, so "
               'published clouds keep one orientation over time.'),
@@ -141,7 +151,7 @@ def solver_params(cls=None):
         rng = _range_of(constraint) if kind in (int, float) else None
         if rng is not None and kind is int:
             rng = (int(rng[0]), int(min(rng[1], 2**31 - 1)))
-        choices = ('auto',) if 'auto' in constraint else None
+        choices = tuple(re.findall(r"'(\w+)'", constraint)) or None    # quoted words
         out.append(ParamSpec(SOLVER_PREFIX + name, default, kind,
                              f'{description} [{constraint}]', range=rng, choices=choices))
     return tuple(out)
@@ -234,7 +244,7 @@ def solver_kwargs(config):
 def window_kwargs(config):
     """SlidingWindow's keyword arguments from a config dict."""
     keys = ('window_size', 'window_stride', 'min_tracks', 'warm_start', 'align_windows',
-            'context_frames', 'warm_rotations')
+            'context_frames', 'warm_rotations', 'key_frames')
     return {k: config[k] for k in keys if k in config}
 
 

@@ -34,6 +34,14 @@ The first window of a sequence starts from the rigid factorisation (rotations an
 30-frame window holds too little rotation for the nuclear norm to create depth from scratch
 (dense face, 60 frames, window 30 / stride 10: first window from scratch e3D 0.225, rigid 0.116,
 solver started from rigid 0.109), and every later window inherits the first one's depth.
+Without the warm start (``warm_start=False``) a window with context frames is solved from the
+solver's own rotations and shapes, and a window alone (the first) from the rigid factorisation.
+Measured (window 30 / stride 10, context 60; streaming e3D warm -> off): face 60x3000 0.063 ->
+0.062, face 99x3000 0.121 -> 0.118, inflating 0.054 -> 0.048, pickup 0.059 -> 0.037, Torresani
+face 0.080 -> 0.063 (0.060 with ``key_frames`` 30), but bending 60x400 0.168 -> 0.189 and ~1.7x
+the CPU per window (cold solves use the solver's smoothness prior): the warm start holds on to the
+earlier windows' errors, e.g. the first window's rotations of a near-static start. ``key_frames``
+adds older frames, spread evenly over the sequence, to the context (KeyFrames).
 Alignment: a window's camera-frame shapes are defined up to the sign of depth (the orthographic
 reflection) and a depth offset; each window's depth is centred per frame and its sign chosen to
 agree with the previous window on the overlap, so published clouds keep one orientation.
@@ -55,6 +63,22 @@ MIN_WINDOW_FRAMES = 3
 CONTEXT_TRACKS = 0.9
 WARM_ROTATIONS = ('solver', 'fit', 'refine')
 DEPTH_FLIP = np.diag([1.0, 1.0, -1.0])
+
+
+class KeyFrames:
+    """At most ``size`` frames spread evenly over a stream of older frames: every ``step``-th
+    one is kept, and ``step`` doubles (every other kept frame dropped) when they overflow."""
+
+    def __init__(self, size):
+        self.size, self.step, self.seen, self.frames = size, 1, 0, []
+
+    def extend(self, frames):
+        for frame in frames:
+            if self.size and self.seen % self.step == 0:
+                self.frames.append(frame)
+                if len(self.frames) > self.size:
+                    self.frames, self.step = self.frames[::2], 2 * self.step
+            self.seen += 1
 
 
 class FrameError(ValueError):
@@ -79,8 +103,9 @@ class Frame:
 class Window:
     """A window ready to solve: ``W: (2F, P)`` pixels of the ``ids: (P,)`` common tracks over
     frames ``stamps: (F,)`` (ascending); ``closed_at``: ``time.monotonic()`` when it closed;
-    ``context``: the earlier Frames of its sequence (oldest first, at most ``context_frames``)
-    solved with it but not published by it."""
+    ``context``: the earlier Frames of its sequence solved with it but not published by it
+    (oldest first: up to ``key_frames`` spread evenly over the older past, then the newest
+    ``context_frames``)."""
 
     sequence: int
     index: int
@@ -171,7 +196,8 @@ class SlidingWindow:
 
     def __init__(self, solver_factory=None, *, window_size=30, window_stride=10, min_tracks=10,
                  warm_start=True, align_windows=True, metres_per_pixel=1.0,
-                 context_frames=60, warm_rotations='solver', warm_start_class=None):
+                 context_frames=60, warm_rotations='solver', warm_start_class=None,
+                 key_frames=0):
         if not MIN_WINDOW_FRAMES <= window_size:
             raise ValueError(f'window_size={window_size}: at least {MIN_WINDOW_FRAMES} frames')
         if not 1 <= window_stride <= window_size:
@@ -179,10 +205,13 @@ class SlidingWindow:
                              f'({window_size})')
         if context_frames < 0:
             raise ValueError(f'context_frames={context_frames}: must be >= 0')
+        if key_frames < 0:
+            raise ValueError(f'key_frames={key_frames}: must be >= 0')
         if warm_rotations not in WARM_ROTATIONS:
             raise ValueError(f'warm_rotations={warm_rotations!r}: one of {WARM_ROTATIONS}')
         self.solver_factory = solver_factory or default_solver_factory()
         self.context_frames, self.warm_rotations = int(context_frames), warm_rotations
+        self.key_frames = int(key_frames) if self.context_frames else 0
         self.window_size, self.window_stride = int(window_size), int(window_stride)
         self.min_tracks = int(min_tracks)
         self.warm_start, self.align_windows = bool(warm_start), bool(align_windows)
@@ -190,6 +219,7 @@ class SlidingWindow:
         self._warm_start_class = warm_start_class
         self._frames = []               # buffered Frames, ascending stamps
         self._history = deque(maxlen=max(self.context_frames, 1))   # Frames that left _frames
+        self._keys = KeyFrames(self.key_frames)     # older Frames, thinned evenly
         self._sequence = 0
         self._window_index = 0
         self._emitted_until = None      # newest stamp of the last emitted window
@@ -210,6 +240,7 @@ class SlidingWindow:
             windows += self.flush()
             self._frames = []
             self._history.clear()
+            self._keys = KeyFrames(self.key_frames)
             self._sequence += 1
             self._emitted_until = None          # a new sequence's stamps may start earlier
             self._count('resets')
@@ -218,7 +249,11 @@ class SlidingWindow:
         self._count('frames')
         if len(self._frames) >= self.window_size:
             windows.append(self._emit(self._frames[:self.window_size]))
-            self._history.extend(self._frames[:self.window_stride])
+            leaving = self._frames[:self.window_stride]
+            spill = len(self._history) + len(leaving) - self._history.maxlen
+            if self.context_frames and spill > 0:
+                self._keys.extend((list(self._history) + leaving)[:spill])
+            self._history.extend(leaving)
             self._frames = self._frames[self.window_stride:]
         return windows
 
@@ -285,7 +320,8 @@ class SlidingWindow:
             if self._emitted_until is None or s > self._emitted_until:
                 self._unpublished.append((self._sequence, int(s)))
         self._emitted_until = int(stamps[-1])
-        context = tuple(f for f in self._history if f.stamp_ns < stamps[0]) \
+        context = tuple(f for f in self._keys.frames + list(self._history)
+                        if f.stamp_ns < stamps[0]) \
             if self.context_frames else ()
         window = Window(self._sequence, self._window_index, stamps,
                         tuple(f.frame_id for f in frames), common, W, time.monotonic(),
@@ -306,7 +342,8 @@ class SlidingWindow:
                               f'{window.ids.size} tracks (< min_tracks={self.min_tracks})')
         problem = self._problem(window)
         Wc, _ = centre(problem.W)
-        init = self._warm_start_for(problem, Wc) if self.warm_start else None
+        init = self._warm_start_for(problem, Wc) if self.warm_start else \
+            self._cold_start_for(problem)
         solver = self.solver_factory()
         kwargs = {} if init is None else {'init': init}
         if progress is not None and _takes_progress(solver.fit):
@@ -340,7 +377,8 @@ class SlidingWindow:
         """What ``window`` is solved as: its context frames (newest first dropped last) then its
         own frames, on the tracks common to all of them. Context frames are dropped, oldest
         first, while the common tracks are fewer than ``CONTEXT_TRACKS`` of the window's."""
-        context = window.context[len(window.context) - self.context_frames:] \
+        limit = self.context_frames + self.key_frames
+        context = window.context[max(0, len(window.context) - limit):] \
             if self.context_frames else ()
         ids = window.ids
         kept = 0
@@ -476,6 +514,15 @@ class SlidingWindow:
         Q = aligned[-1]                     # D I D = I: the probe is Q for either twin
         twins = (est @ Q, DEPTH_FLIP @ est @ DEPTH_FLIP @ Q)
         return min(twins, key=lambda t: np.linalg.norm(t[known] - R[known]))
+
+    def _cold_start_for(self, problem):
+        """Start of a problem solved without the previous solution (``warm_start`` off): the
+        rigid factorisation when it has no context frames (the first window of a sequence, or
+        ``context_frames`` 0), else None (the solver's own rotations and shapes)."""
+        cls = self._warm_start_class or _warm_start_class()
+        if cls is None or problem.n_context:
+            return None
+        return self._rigid_start(problem.W, cls)
 
     @staticmethod
     def _rigid_start(W, cls):

@@ -224,7 +224,7 @@ def test_context_frames_are_solved_again_but_not_republished():
     W, S, ids = make_sequence(F=60, noise=0.5)
     seen = []
     p = SlidingWindow(recording(seen), warm_start_class=RigidWarmStart, context_frames=15,
-                      warm_rotations='fit')
+                      warm_rotations='fit', key_frames=0)
     frames = frames_of(W, ids)
     results, contexts = [], []
     for f in range(60):
@@ -266,6 +266,32 @@ def test_context_frames_dropped_when_they_share_too_few_tracks():
     # frames 0..4 lack 20 of the window's 100 tracks (< 90% common): only frames 5..9 kept
     assert problem.n_context == 5 and problem.ids.size == 100
     assert [r.stamp_ns for r in p.solve(windows[0]) + p.solve(windows[1])] == list(range(40))
+
+
+def test_every_context_frame_is_used_while_fewer_than_context_frames():
+    W, S, ids = make_sequence(F=60, P=100)
+    p = pipeline(context_frames=30)
+    windows = [w for f, (fid, uv) in enumerate(frames_of(W, ids)) for w in p.add_frame(f, fid, uv)]
+    # windows 0..29, 10..39, 20..49, 30..59: 0, 10, 20 and 30 earlier frames, all solved again
+    # (a negative slice start once kept only the newest 10 of 20)
+    assert [p._problem(w).n_context for w in windows] == [0, 10, 20, 30]
+    np.testing.assert_array_equal(p._problem(windows[2]).stamps, np.arange(50))
+
+
+def test_key_frames_spread_evenly_over_the_older_past():
+    W, S, ids = make_sequence(F=160, P=60)
+    p = pipeline(context_frames=20, key_frames=4)
+    windows = [w for f, (fid, uv) in enumerate(frames_of(W, ids)) for w in p.add_frame(f, fid, uv)]
+    contexts = [[c.stamp_ns for c in w.context] for w in windows]
+    # frames leaving the newest 20 become key frames: every one, then every 2nd, 4th, ...
+    assert contexts[2] == list(range(20))                           # window 20..49: none left
+    assert contexts[3] == [0, 4, 8] + list(range(10, 30))           # 0..9 left
+    assert contexts[4] == [0, 8, 16] + list(range(20, 40))          # 0..19 left
+    assert contexts[5] == [0, 8, 16, 24] + list(range(30, 50))
+    assert contexts[-1] == [0, 32, 64, 96] + list(range(110, 130))  # window 130..159
+    problem = p._problem(windows[-1])
+    np.testing.assert_array_equal(problem.stamps, contexts[-1] + list(range(130, 160)))
+    assert [c.stamp_ns for c in pipeline(context_frames=0).add_frame(0, ids, W[:2].T)] == []
 
 
 def test_warm_start_fills_new_tracks_from_nearest_old_track():
