@@ -26,22 +26,24 @@ Policies (the node reports each as it happens):
   next solved window publishes every unpublished frame it covers; frames that fell out of all
   solved windows are counted in ``stats['frames_lost']``.
 
-Warm start: each window's solve starts from the previous solution on the overlapping frames
-and tracks (rotations, camera-frame shapes, spatial groups) through
-``solver.fit(W, init=WarmStart(...))``. New frames start from the newest overlapping frame's
-rotation and depth, new tracks from the depth and group of their nearest old track in the image.
-The first window of a sequence starts from the rigid factorisation (rotations and shape): a
-30-frame window holds too little rotation for the nuclear norm to create depth from scratch
-(dense face, 60 frames, window 30 / stride 10: first window from scratch e3D 0.225, rigid 0.116,
-solver started from rigid 0.109), and every later window inherits the first one's depth.
-Without the warm start (``warm_start=False``) a window with context frames is solved from the
-solver's own rotations and shapes, and a window alone (the first) from the rigid factorisation.
-Measured (window 30 / stride 10, context 60; streaming e3D warm -> off): face 60x3000 0.063 ->
-0.062, face 99x3000 0.121 -> 0.118, inflating 0.054 -> 0.048, pickup 0.059 -> 0.037, Torresani
-face 0.080 -> 0.063 (0.060 with ``key_frames`` 30), but bending 60x400 0.168 -> 0.189 and ~1.7x
-the CPU per window (cold solves use the solver's smoothness prior): the warm start holds on to the
-earlier windows' errors, e.g. the first window's rotations of a near-static start. ``key_frames``
-adds older frames, spread evenly over the sequence, to the context (KeyFrames).
+Default (``warm_start=False``, ``key_frames=30``): each window is solved together with up to
+``context_frames`` earlier frames and ``key_frames`` older ones spread evenly over the sequence
+(KeyFrames), from the solver's own start (its rotation estimate and initial shapes); a window
+alone (the first of a sequence) starts from the rigid factorisation: a 30-frame window holds
+too little rotation for the nuclear norm to create depth from scratch (dense face, 60 frames:
+first window from scratch e3D 0.225, rigid 0.116, solver started from rigid 0.109).
+Warm start (``warm_start=True``): each window's solve starts from the previous solution on the
+overlapping frames and tracks (rotations fixed, camera-frame shapes, spatial groups) through
+``solver.fit(W, init=WarmStart(...))``; new frames start from the newest overlapping frame's
+rotation and depth, new tracks from the depth and group of their nearest old track in the
+image. It saves 10-20 % of the iterations (84 vs 101 on a bending window) but holds on to the
+earlier windows' errors, e.g. the first window's rotations of a near-static start. Measured
+(window 30 / stride 10, context 60; streaming e3D warm -> default): Torresani face 0.080 ->
+0.060 (rigid per window 0.063), pickup 0.059 -> 0.036, dense face 99 x 3000 0.123 -> 0.116,
+inflating 0.054 -> 0.048, dense face 60 x 3000 0.063 -> 0.062, bending 60 x 1000 0.193 ->
+0.181 (with the solver's rotation check; 0.204 before it), at ~1.7x the CPU per window (cold
+solves use the solver's smoothness prior). Key frames with the warm start did not help (face
+0.080 -> 0.083).
 Alignment: a window's camera-frame shapes are defined up to the sign of depth (the orthographic
 reflection) and a depth offset; each window's depth is centred per frame and its sign chosen to
 agree with the previous window on the overlap, so published clouds keep one orientation.
@@ -195,9 +197,9 @@ class SlidingWindow:
     """
 
     def __init__(self, solver_factory=None, *, window_size=30, window_stride=10, min_tracks=10,
-                 warm_start=True, align_windows=True, metres_per_pixel=1.0,
+                 warm_start=False, align_windows=True, metres_per_pixel=1.0,
                  context_frames=60, warm_rotations='solver', warm_start_class=None,
-                 key_frames=0):
+                 key_frames=30):
         if not MIN_WINDOW_FRAMES <= window_size:
             raise ValueError(f'window_size={window_size}: at least {MIN_WINDOW_FRAMES} frames')
         if not 1 <= window_stride <= window_size:

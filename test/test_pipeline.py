@@ -199,7 +199,8 @@ def test_depth_sign_aligned_across_windows(warm_start):
 def test_warm_start_carries_previous_solution_on_overlap():
     W, S, ids = make_sequence(F=40, noise=0.5)
     seen = []
-    p = SlidingWindow(recording(seen), warm_start_class=RigidWarmStart, context_frames=0,
+    p = SlidingWindow(recording(seen), warm_start=True, warm_start_class=RigidWarmStart,
+                      context_frames=0,
                       warm_rotations='solver')
     frames = frames_of(W, ids)
     windows = [w for f in range(40) for w in p.add_frame(f, *frames[f])]
@@ -223,7 +224,8 @@ def test_warm_start_carries_previous_solution_on_overlap():
 def test_context_frames_are_solved_again_but_not_republished():
     W, S, ids = make_sequence(F=60, noise=0.5)
     seen = []
-    p = SlidingWindow(recording(seen), warm_start_class=RigidWarmStart, context_frames=15,
+    p = SlidingWindow(recording(seen), warm_start=True, warm_start_class=RigidWarmStart,
+                      context_frames=15,
                       warm_rotations='fit', key_frames=0)
     frames = frames_of(W, ids)
     results, contexts = [], []
@@ -297,7 +299,8 @@ def test_key_frames_spread_evenly_over_the_older_past():
 def test_warm_start_fills_new_tracks_from_nearest_old_track():
     W, S, ids = make_sequence(F=40, P=300, noise=0.0)
     seen = []
-    p = SlidingWindow(recording(seen), warm_start_class=RigidWarmStart, context_frames=0,
+    p = SlidingWindow(recording(seen), warm_start=True, warm_start_class=RigidWarmStart,
+                      context_frames=0,
                       warm_rotations='solver')
     late = ids[:30]
     for f, (fid, uv) in enumerate(frames_of(W, ids)):

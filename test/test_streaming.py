@@ -64,9 +64,10 @@ def test_streaming_dense_face_beats_rigid_windows():
     except FileNotFoundError as exc:
         pytest.skip(str(exc))
     stream, whole, rigid = errors(seq.W, seq.S)
-    # measured (context_frames 60, rotations refined): streaming 0.0608, whole 0.0446 (x1.37),
-    # rigid per window 0.1177; each window alone 0.1088. The first 30 frames see only the first
-    # window: most of the gap to whole is there.
+    print(f'streaming {stream:.4f}, whole {whole:.4f}, rigid per window {rigid:.4f}')
+    # measured (context 60, key frames 30, no warm start): streaming 0.0612, whole 0.0433
+    # (x1.41), rigid per window 0.1177; each window alone 0.1088. The first 30 frames see only
+    # the first window: most of the gap to whole is there.
     assert stream < 0.7 * rigid
     assert stream < 1.6 * whole
 
@@ -74,9 +75,13 @@ def test_streaming_dense_face_beats_rigid_windows():
 def test_streaming_synthetic_close_to_whole_sequence():
     seq = make_sequence('bending', n_frames=60, n_points=400)
     stream, whole, rigid = errors(seq.W, seq.S)
-    # measured: streaming 0.1715, whole 0.1682 (x1.02), rigid per window 0.2657; each window
-    # alone 0.1815
-    assert stream < 1.1 * whole
+    print(f'streaming {stream:.4f}, whole {whole:.4f}, rigid per window {rigid:.4f}')
+    # measured: streaming 0.1710, whole 0.1537 (x1.11), rigid per window 0.2657. The bound was
+    # 1.1x whole while whole was 0.1682; the solver's rotation check then improved the
+    # whole-sequence solve (0.1682 -> 0.1537) but not the windows (streaming 0.1715 -> 0.1710),
+    # so the ratio is now held at 1.15x and streaming itself at its measured figure + 5 %.
+    assert stream < 1.15 * whole
+    assert stream < 1.05 * 0.1710
     assert stream < 0.8 * rigid
 
 
@@ -84,7 +89,7 @@ def test_warm_start_needs_fewer_iterations_than_cold_on_the_same_window():
     seq = make_sequence('bending', n_frames=40, n_points=400)
     factory = Recording()
     pipe = SlidingWindow(factory, window_size=30, window_stride=10, context_frames=0,
-                         warm_rotations='solver')
+                         warm_start=True, warm_rotations='solver')
     ids = np.arange(400)
     windows = [w for f, uv in enumerate(as_frames(seq.W, 2)) for w in pipe.add_frame(f, ids, uv.T)]
     assert len(windows) == 2
