@@ -27,6 +27,13 @@ def second_difference_bands(F):
     return bands
 
 
+#: up to this many frames the S update multiplies by the dense inverse of its (3F, 3F) system
+#: (one GEMM, cache-friendly) instead of the banded solve (LAPACK pbtrs, one column at a time):
+#: 99 frames x 28,880 points 0.11 s vs 0.27 s CPU per solve, same result to 1e-15; the inverse
+#: costs O(F^3) per beta, which stays small up to here
+DENSE_MAX_FRAMES = 200
+
+
 class TemporalSmoothness:
     """Banded solver of the S-update with the smoothness prior.
 
@@ -49,13 +56,18 @@ class TemporalSmoothness:
                 ab[3 * d, 3 * np.arange(F) + i] += self.lam * dd[d]
         self.ab = ab
         self._beta = None
-        self._factor = None
+        self._factor = self._inverse = None
 
     def _factor_for(self, beta):
+        """Banded Cholesky factor of the system at ``beta`` (and, for at most
+        DENSE_MAX_FRAMES frames, its dense inverse ``(3F, 3F)``)."""
         if beta != self._beta:
             ab = self.ab.copy()
             ab[0] += beta
             self._factor = cholesky_banded(ab, lower=True, check_finite=False)
+            self._inverse = (cho_solve_banded((self._factor, True), np.eye(3 * self.F),
+                                              check_finite=False)
+                             if self.F <= DENSE_MAX_FRAMES else None)
             self._beta = beta
         return self._factor
 
@@ -66,8 +78,11 @@ class TemporalSmoothness:
         """
         F, P = self.F, W.shape[2]
         b = rhs_world + np.matmul(self.R[:, :2, :].transpose(0, 2, 1), W)
-        x = cho_solve_banded((self._factor_for(beta), True), b.reshape(3 * F, P),
-                             overwrite_b=True, check_finite=False)
+        factor = self._factor_for(beta)
+        if self._inverse is not None:
+            return (self._inverse @ b.reshape(3 * F, P)).reshape(F, 3, P)
+        x = cho_solve_banded((factor, True), b.reshape(3 * F, P), overwrite_b=True,
+                             check_finite=False)
         return x.reshape(F, 3, P)
 
     def energy(self, S):
