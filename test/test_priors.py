@@ -19,8 +19,10 @@ def second_difference(F):
     return D
 
 
+@pytest.mark.parametrize('dense_max_frames', [200, 0])     # the dense-inverse and banded paths
 @pytest.mark.parametrize('F', [3, 4, 9])
-def test_banded_solve_matches_dense_normal_equations(F):
+def test_banded_solve_matches_dense_normal_equations(F, dense_max_frames, monkeypatch):
+    monkeypatch.setattr('grass_nrsfm_ros.nrsfm.priors.DENSE_MAX_FRAMES', dense_max_frames)
     rng = np.random.default_rng(F)
     P, lam, beta = 6, 2.5, 0.3
     R = random_rotations(F, rng)

@@ -56,20 +56,25 @@ class TemporalSmoothness:
                 ab[3 * d, 3 * np.arange(F) + i] += self.lam * dd[d]
         self.ab = ab
         self._beta = None
-        self._factor = self._inverse = None
+        self._solve = None
 
-    def _factor_for(self, beta):
-        """Banded Cholesky factor of the system at ``beta`` (and, for at most
-        DENSE_MAX_FRAMES frames, its dense inverse ``(3F, 3F)``)."""
+    def _solver_at(self, beta):
+        """``solve(b: (3F, P)) -> x: (3F, P)`` for the system at ``beta`` (factored once per
+        beta): the dense inverse up to DENSE_MAX_FRAMES frames, else the banded Cholesky."""
         if beta != self._beta:
             ab = self.ab.copy()
             ab[0] += beta
-            self._factor = cholesky_banded(ab, lower=True, check_finite=False)
-            self._inverse = (cho_solve_banded((self._factor, True), np.eye(3 * self.F),
-                                              check_finite=False)
-                             if self.F <= DENSE_MAX_FRAMES else None)
+            factor = cholesky_banded(ab, lower=True, check_finite=False)
+            if self.F <= DENSE_MAX_FRAMES:
+                self._solve = cho_solve_banded((factor, True), np.eye(3 * self.F),
+                                               check_finite=False).__matmul__
+            else:
+                def banded(b):
+                    return cho_solve_banded((factor, True), b, overwrite_b=True,
+                                            check_finite=False)
+                self._solve = banded
             self._beta = beta
-        return self._factor
+        return self._solve
 
     def solve(self, W, rhs_world, beta):
         """S ``(F, 3, P)`` world frame minimising the S-update objective.
@@ -78,12 +83,7 @@ class TemporalSmoothness:
         """
         F, P = self.F, W.shape[2]
         b = rhs_world + np.matmul(self.R[:, :2, :].transpose(0, 2, 1), W)
-        factor = self._factor_for(beta)
-        if self._inverse is not None:
-            return (self._inverse @ b.reshape(3 * F, P)).reshape(F, 3, P)
-        x = cho_solve_banded((factor, True), b.reshape(3 * F, P), overwrite_b=True,
-                             check_finite=False)
-        return x.reshape(F, 3, P)
+        return self._solver_at(beta)(b.reshape(3 * F, P)).reshape(F, 3, P)
 
     def energy(self, S):
         """``(lam/2) ||D S||^2`` for ``S: (F, 3, P)``."""
