@@ -379,9 +379,7 @@ class SlidingWindow:
         """What ``window`` is solved as: its context frames (newest first dropped last) then its
         own frames, on the tracks common to all of them. Context frames are dropped, oldest
         first, while the common tracks are fewer than ``CONTEXT_TRACKS`` of the window's."""
-        limit = self.context_frames + self.key_frames
-        context = window.context[max(0, len(window.context) - limit):] \
-            if self.context_frames else ()
+        context = window.context            # bounded when the window closed (_emit)
         ids = window.ids
         kept = 0
         for frame in reversed(context):
