@@ -69,25 +69,28 @@ NODE_PARAMS = (
     ParamSpec('min_tracks', 10, int,
               'Fewest tracks a frame must have; a frame sharing fewer ids than this with the '
               'previous frame starts a new sequence (all ids changed).', range=(4, 10000000)),
-    ParamSpec('warm_start', False, bool,
-              "Start each window's solve from the previous window's solution on the overlap "
-              '(rotations fixed, shapes and groups carried; 10-20 % fewer iterations). Off '
-              "(default): a window with context and key frames is solved from the solver's own "
-              'start, a window alone from the rigid factorisation; measured streaming e3D warm '
-              '-> off (+ key_frames 30): Torresani face 0.080 -> 0.060, pickup 0.059 -> 0.036, '
-              'bending 0.193 -> 0.181, dense face 99 frames 0.123 -> 0.116: the warm start '
-              "holds on to the earlier windows' errors; off costs ~1.7x the CPU per window."),
+    ParamSpec('warm_start', 'model', str,
+              "What each window's solve takes from the previous window's solution on the "
+              "overlapping frames and tracks. 'model' (default): the spatial groups of the "
+              "tracks and the rotation method (Dai's or rigid, checked again once half the "
+              "frames are new); rotations are re-estimated over window + context and shapes "
+              "start from the solver's own start: the same accuracy as 'off' at about half the "
+              "CPU per window on sparse tracks (WARMSTART_FIGURES). 'full': also the rotations "
+              "of the overlapping frames (fixed) and their shapes: fewer iterations, but it "
+              "holds on to earlier windows' errors (WARMFULL_FIGURES). 'off': every window from "
+              "the solver's own start. A window without context frames (the first) starts from "
+              'the rigid factorisation.', choices=('model', 'full', 'off')),
     ParamSpec('context_frames', 60, int,
               'Earlier frames solved again with each window (not republished): the shape '
               'prior sees window + context frames. 0: the window alone.', range=(0, 100000)),
     ParamSpec('key_frames', 30, int,
               'Older frames (beyond context_frames) also solved again with each window, spread '
               'evenly over the sequence so far, so long sequences keep their shape prior '
-              '(warm_start off: Torresani face streaming e3D 0.063 -> 0.060; with the warm '
-              'start it did not help, 0.080 -> 0.083). 0: none; unused when context_frames is '
+              "(Torresani face streaming e3D 0.063 -> 0.060; with warm_start 'full' it did not "
+              "help, 0.080 -> 0.083). 0: none; unused when context_frames is "
               '0.', range=(0, 100000)),
     ParamSpec('warm_rotations', 'solver', str,
-              "Rotations of a warm-started solve (warm_start on): 'solver' (previous ones "
+              "Rotations of a fully warm-started solve (warm_start 'full'): 'solver' (previous ones "
               "fixed, new ones from the solver's estimate), 'refine' (Dai's over all frames, "
               'aligned to the previous solution: slightly more accurate, one more rotation '
               "estimate per window), 'fit' (previous ones; new frames fitted to the previous "

@@ -64,6 +64,10 @@ MIN_WINDOW_FRAMES = 3
 #: and the window stay at least this share of the window's tracks
 CONTEXT_TRACKS = 0.9
 WARM_ROTATIONS = ('solver', 'fit', 'refine')
+WARM_STARTS = ('model', 'full', 'off')
+#: warm_start 'model': the rotation method carried from the solver's last check is checked again
+#: once the frames new since that check reach this share of the frames it was made on
+RECHECK_SHARE = 0.5
 DEPTH_FLIP = np.diag([1.0, 1.0, -1.0])
 
 
@@ -197,7 +201,7 @@ class SlidingWindow:
     """
 
     def __init__(self, solver_factory=None, *, window_size=30, window_stride=10, min_tracks=10,
-                 warm_start=False, align_windows=True, metres_per_pixel=1.0,
+                 warm_start='model', align_windows=True, metres_per_pixel=1.0,
                  context_frames=60, warm_rotations='solver', warm_start_class=None,
                  key_frames=30):
         if not MIN_WINDOW_FRAMES <= window_size:
@@ -209,6 +213,8 @@ class SlidingWindow:
             raise ValueError(f'context_frames={context_frames}: must be >= 0')
         if key_frames < 0:
             raise ValueError(f'key_frames={key_frames}: must be >= 0')
+        if warm_start not in WARM_STARTS:
+            raise ValueError(f'warm_start={warm_start!r}: one of {WARM_STARTS}')
         if warm_rotations not in WARM_ROTATIONS:
             raise ValueError(f'warm_rotations={warm_rotations!r}: one of {WARM_ROTATIONS}')
         self.solver_factory = solver_factory or default_solver_factory()
@@ -216,7 +222,7 @@ class SlidingWindow:
         self.key_frames = int(key_frames) if self.context_frames else 0
         self.window_size, self.window_stride = int(window_size), int(window_stride)
         self.min_tracks = int(min_tracks)
-        self.warm_start, self.align_windows = bool(warm_start), bool(align_windows)
+        self.warm_start, self.align_windows = warm_start, bool(align_windows)
         self.metres_per_pixel = float(metres_per_pixel)
         self._warm_start_class = warm_start_class
         self._frames = []               # buffered Frames, ascending stamps
@@ -228,6 +234,7 @@ class SlidingWindow:
         self._unpublished = deque(maxlen=1_000_000)   # (sequence, stamp) emitted, not published
         self._published_until = {}      # sequence -> newest published stamp
         self._previous = None           # Solution of the last solved window
+        self._rotation_check = None     # (sequence, method, stamps) of the solver's last check
         self._lock = threading.Lock()
         self.stats = dict(frames=0, refused=0, resets=0, windows=0, solved=0, failed=0,
                           published=0, frames_lost=0)
@@ -344,8 +351,7 @@ class SlidingWindow:
                               f'{window.ids.size} tracks (< min_tracks={self.min_tracks})')
         problem = self._problem(window)
         Wc, _ = centre(problem.W)
-        init = self._warm_start_for(problem, Wc) if self.warm_start else \
-            self._cold_start_for(problem)
+        init = self._start_for(problem, Wc)
         solver = self.solver_factory()
         kwargs = {} if init is None else {'init': init}
         if progress is not None and _takes_progress(solver.fit):
@@ -368,9 +374,11 @@ class SlidingWindow:
         uv = problem.W.reshape(F, 2, -1).transpose(0, 2, 1)
         residual = float(np.linalg.norm(as_frames(Wc, 2) - as_frames(S, 3)[:, :2, :])
                          / max(np.linalg.norm(Wc), 1e-300))
+        report = getattr(result, 'report', None)
+        if getattr(report, 'rotation_checked', False):
+            self._rotation_check = (problem.sequence, report.rotation_method, problem.stamps)
         self._previous = Solution(window.sequence, problem.stamps, problem.ids, uv, S, R,
-                                  getattr(result, 'groups', None), getattr(result, 'report', None),
-                                  residual)
+                                  getattr(result, 'groups', None), report, residual)
         self._count('solved')
         c = problem.n_context
         return self._publish(window, problem.ids, as_frames(Wc, 2)[c:], Z[c:])
@@ -447,23 +455,48 @@ class SlidingWindow:
         old = old - old.mean(axis=1, keepdims=True)
         return float(np.sum(new * old)) < 0.0
 
-    def _warm_start_for(self, problem, Wc):
-        """WarmStart for ``problem`` (centred tracks ``Wc: (2F, P)``) from the previous
-        solution, or None. Known frames: those shared with the previous solution."""
-        ov = self._overlap(problem)
+    def _start_for(self, problem, Wc):
+        """The solver's ``init`` for ``problem`` (centred tracks ``Wc: (2F, P)``), or None.
+
+        A problem without context frames (the first window of a sequence, or
+        ``context_frames`` 0) starts from the rigid factorisation unless ``warm_start`` is
+        'full' and it overlaps the previous solution; otherwise 'off' gives None (the solver's
+        own start), 'model' the previous solution's spatial groups and rotation method, 'full'
+        its rotations and shapes too (:meth:`_full_warm_start`)."""
         cls = self._warm_start_class or _warm_start_class()
         if cls is None:
             return None
-        if ov is None:
+        ov = self._overlap(problem)
+        if self.warm_start == 'full' and ov is not None:
+            return self._full_warm_start(problem, Wc, ov, cls)
+        if not problem.n_context or self.warm_start == 'full':
             return self._rigid_start(problem.W, cls)
+        if self.warm_start == 'off':
+            return None
+        groups = None
+        if ov is not None and self._previous.groups is not None:
+            groups = np.asarray(self._previous.groups)[self._donors(problem, ov)]
+        return cls(groups=groups, rotation_method=self._carried_rotation_method(problem))
+
+    def _carried_rotation_method(self, problem):
+        """The rotation method of the solver's last check in this sequence, while fewer than
+        RECHECK_SHARE of the frames it was made on are new in ``problem``; else None (the
+        solver checks again)."""
+        if self._rotation_check is None:
+            return None
+        sequence, method, stamps = self._rotation_check
+        if sequence != problem.sequence:
+            return None
+        new = np.setdiff1d(problem.stamps, stamps, assume_unique=True).size
+        return method if new < RECHECK_SHARE * stamps.size else None
+
+    def _donors(self, problem, ov):
+        """For each track of ``problem``, the index of a track of the previous solution: the
+        same track where shared, else the nearest shared track in the image of the first
+        shared frame. ``(P,)`` int."""
         fn, fo, tn, to = ov
         p = self._previous
         F, P = len(problem.stamps), problem.ids.size
-        # every new frame copies the nearest shared frame (in time): rotation and depth
-        nearest = fn[np.clip(np.searchsorted(fn, np.arange(F)), 0, fn.size - 1)]
-        source = fo[np.searchsorted(fn, nearest)]
-        R = p.R[source]
-        # depth of each new track from its nearest old track in the first shared frame's image
         donor = np.full(P, -1)
         donor[tn] = to
         missing = donor < 0
@@ -472,6 +505,20 @@ class SlidingWindow:
             tree = cKDTree(p.uv[fo[0]][to])
             new_uv = problem.W.reshape(F, 2, P)[fn[0]].T[missing]     # pixels, same frame
             donor[missing] = to[tree.query(new_uv)[1]]
+        return donor
+
+    def _full_warm_start(self, problem, Wc, ov, cls):
+        """WarmStart from the previous solution on the overlap ``ov``: rotations fixed on the
+        shared frames, camera-frame shapes and spatial groups carried (new frames copy the
+        nearest shared frame's rotation and depth, new tracks their donor's depth and group)."""
+        fn, fo, tn, to = ov
+        p = self._previous
+        F, P = len(problem.stamps), problem.ids.size
+        # every new frame copies the nearest shared frame (in time): rotation and depth
+        nearest = fn[np.clip(np.searchsorted(fn, np.arange(F)), 0, fn.size - 1)]
+        source = fo[np.searchsorted(fn, nearest)]
+        R = p.R[source]
+        donor = self._donors(problem, ov)
         Zold = as_frames(p.S, 3)[:, 2, :]
         Z = Zold[source][:, donor]
         Z -= Z.mean(axis=1, keepdims=True)
@@ -514,15 +561,6 @@ class SlidingWindow:
         Q = aligned[-1]                     # D I D = I: the probe is Q for either twin
         twins = (est @ Q, DEPTH_FLIP @ est @ DEPTH_FLIP @ Q)
         return min(twins, key=lambda t: np.linalg.norm(t[known] - R[known]))
-
-    def _cold_start_for(self, problem):
-        """Start of a problem solved without the previous solution (``warm_start`` off): the
-        rigid factorisation when it has no context frames (the first window of a sequence, or
-        ``context_frames`` 0), else None (the solver's own rotations and shapes)."""
-        cls = self._warm_start_class or _warm_start_class()
-        if cls is None or problem.n_context:
-            return None
-        return self._rigid_start(problem.W, cls)
 
     @staticmethod
     def _rigid_start(W, cls):

@@ -270,12 +270,15 @@ class WarmStart:
 
     ``R: (F, 3, 3)`` rotations, ``S: (3F, P)`` camera-frame shapes (any translation, same units
     as W), ``known: (F,)`` bool frames whose R and S are given (default: all), ``groups: (P,)``
-    spatial labels. Every field is optional.
+    spatial labels, ``rotation_method``: 'dai' or 'rigid', how rotations that are not given are
+    estimated (None: the solver's ``rotations`` parameter; a method given skips the 'auto'
+    check, e.g. one a previous solve of overlapping frames chose). Every field is optional.
     """
     R: np.ndarray = None
     S: np.ndarray = None
     known: np.ndarray = None
     groups: np.ndarray = None
+    rotation_method: str = None
 
 
 @dataclass
@@ -297,6 +300,8 @@ class SolverReport:
     reprojection_rms: float = float('nan')       # RMS of W - RS in W's units
     reprojection_relative: float = float('nan')  # the same over the RMS of centred W
     warm_started_frames: int = 0
+    rotation_method: str = None                  # 'dai', 'rigid' or 'given' (init.R, all known)
+    rotation_checked: bool = False               # the 'auto' check chose rotation_method
     fallback: str = None
     notes: list = field(default_factory=list)    # automatic decisions worth knowing
 
@@ -557,18 +562,22 @@ class GrassmannNRSfM:
         Wn /= scale                                     # centred, unit RMS
         report = SolverReport()
         t = time.perf_counter()
-        R, report.K_rot, note = self._rotations(Wn, init, known, p)
+        R, report.K_rot, report.rotation_method, note = self._rotations(Wn, init, known, p)
         if note:
             report.notes.append(note)
+            report.rotation_checked = True
         t = timer.add('rotation', t)
 
         K_s, K_t, N_s, N_t = self._sizes(p, F, P, groups)
-        if p['spatial'] and K_s == 1 and p['K_s'] == 'auto' and groups is None:
+        if p['spatial'] and K_s == 1 and p['K_s'] == 'auto':
             # too few points for local trajectory subspaces: a single group would turn zeta_s
-            # into a global rank-N_s constraint (measured: pickup e3D 0.026 -> 0.081)
+            # into a global rank-N_s constraint (measured: pickup e3D 0.026 -> 0.081); the same
+            # holds for given one-label groups (a warm start from a solve that had the branch
+            # off: streamed pickup 0.052 with the branch on, 0.036 off)
             p['spatial'] = False
-            report.notes.append(f'spatial branch off: P={P} is too few points for K_s >= 2 '
-                                f'groups of > {20 * (N_s + 1)} points')
+            report.notes.append('spatial branch off: ' + (
+                'init.groups hold one group' if groups is not None else
+                f'P={P} is too few points for K_s >= 2 groups of > {20 * (N_s + 1)} points'))
         report.K_s, report.K_t, report.N_s, report.N_t = K_s, K_t, N_s, N_t
         gamma = p['gamma'] * np.sqrt(F * P)
         report.gamma = gamma
@@ -632,21 +641,26 @@ class GrassmannNRSfM:
             validate_shapes(init.S, n_frames=F, n_points=P, name='init.S')
         if (init.R is not None or init.S is not None) and not known.any():
             raise InvalidInputError('init.known marks no frame as known')
+        if init.rotation_method not in (None, 'dai', 'rigid'):
+            raise InvalidInputError("init.rotation_method must be None, 'dai' or 'rigid'; got "
+                                    f'{init.rotation_method!r}')
         return known, groups
 
     def _rotations(self, Wn, init, known, p):
         """Rotations: given ones for known frames; the others estimated and aligned to them.
-        Returns ``(R: (F, 3, 3), K used by Dai's step or None, note or None)``."""
+        Returns ``(R: (F, 3, 3), K used by Dai's step or None, method, note or None)`` with
+        method 'given', 'dai' or 'rigid'; the note reports the 'auto' check."""
         if init.R is not None and known.all():
-            return np.array(init.R, dtype=np.float64), None, None
+            return np.array(init.R, dtype=np.float64), None, 'given', None
         from .rotation import estimate_rotations, rigid_factorisation
-        if p['rotations'] == 'rigid':
+        method = init.rotation_method or p['rotations']
+        if method == 'rigid':
             R, K = rigid_factorisation(Wn)[0], None
         else:
             est = estimate_rotations(Wn, K=p['K_rot'])
             R, K = np.array(est.R, dtype=np.float64), est.K
         note = None
-        if p['rotations'] == 'auto' and init.R is None:
+        if method == 'auto' and init.R is None:
             R_rigid = rigid_factorisation(Wn)[0]
             dai, rigid = (self._rotation_score(Wn, cand, p) for cand in (R, R_rigid))
             use_rigid = rigid < (1.0 - ROTATION_MARGIN) * dai
@@ -654,9 +668,10 @@ class GrassmannNRSfM:
                     f"Dai's {dai:.4g}, with rigid {rigid:.4g})")
             if use_rigid:
                 R, K = R_rigid, None
+        method = 'dai' if K is not None else 'rigid'
         if init.R is None:
-            return R, K, note
-        return align_rotations(R, np.asarray(init.R, dtype=np.float64), known), K, note
+            return R, K, method, note
+        return align_rotations(R, np.asarray(init.R, dtype=np.float64), known), K, method, note
 
     def _rotation_score(self, Wn, R, p):
         """Nuclear norm of the world-frame ``S#: (F, 3P')`` that a solve with rotations
