@@ -52,7 +52,9 @@ per-frame e3D (metrics.e3d). See the report in the branch history for the tables
   moves to the neighbouring block when that block's subspace explains it better (gated by the
   same affinity rule on C_t), blocks keep ``>= N_t + 1`` frames.
 * zeta: rank-N reconstruction per group, optionally relaxed:
-  ``S_k <- S_k - zeta_weight (I - Psi Psi^T) S_k`` (1 = the paper).
+  ``S_k <- S_k - zeta_weight (I - Psi Psi^T) S_k`` (1 = the paper). zeta_s by default is the
+  local-rigidity pull instead (``local_rigidity``, see the defaults below); zeta_t is the
+  paper's.
 * Order: the paper's (S, C_s, xi_s, zeta_s, J_s, S#, C_t, xi_t, zeta_t, J_t, Omega, Y, beta).
 * Stopping: the paper's rule ``maxgap < eps or beta > beta_max`` never fires as written (beta
   is clamped to beta_max first); implemented as ``beta reached beta_max`` (with rho = 1.1 that
@@ -94,6 +96,39 @@ the paper's noise level: the rank-N zeta projections denoise. Choices behind tha
   (162 moves) but e3D is unchanged (0.0270 vs 0.0271). Kept as the paper describes, cheap
   (every 10 iterations).
 * zeta_weight = 1 (the paper); 0.5 gave no gain.
+* local_rigidity = 0.5 (branch local): zeta_s is replaced by a pull of each spatial group
+  towards its best locally rigid motion up to a per-frame scale, ``s_f Q_f M + t_f`` (rest
+  shape M, rotation Q_f, scale s_f >= 0, centroid t_f; 3 alternations of per-frame Procrustes
+  and averaging, grassmann.rigid_projection), moving each frame's points ONLY along that
+  frame's camera depth axis (the image coordinates are the data's), with weight
+  ``w_eff = local_rigidity * min(1, 1/beta)`` (beta on unit-RMS W: the pull acts while the
+  penalty is below the data term's weight, then fades so that the constraints close as
+  before: gap 2e-11, reprojection 3.8 % on test_admm's sheet). Why: a rank-N_s trajectory
+  subspace allows any per-frame LINEAR map of a patch, so the depth ambiguity z += a_f x +
+  b_f y passes it (N_s 3 / 4 / 5 and 4-12 groups changed nothing, see 'Tried'); a rigid
+  (metric) patch motion does not. The spatial groups (k-means of the trajectories: image
+  patches) stay the paper's, and so do C_s, Omega_s and xi_s; mocap (P < 240, spatial off)
+  is untouched. 53 cases (5 mocap, 5 kinds x orbit/wobble/shaky x seeds 0-2 at 60 x 500,
+  faces 99 x 2000 seeds 0-2), against local_rigidity = 0: geometric mean of the e3D ratios
+  0.906, better (>1 %) on 35, worse on 10, worse than rigid 9 -> 7 (articulated orbit/shaky
+  seed 2 0.130 / 0.141 -> 0.095 / 0.102, rigid 0.119 / 0.118); reprojection below 3 % on all.
+  Gains: twisting orbit 0.150 / 0.168 / 0.115 -> 0.082 / 0.135 / 0.076, twisting shaky 0.097 /
+  0.119 / 0.109 -> 0.075 / 0.101 / 0.074, articulated orbit/shaky seeds 0-2 0.72-0.80x,
+  articulated wobble 0 0.112 -> 0.074, bending shaky 0 / 1 0.147 / 0.139 -> 0.113 / 0.124,
+  bending orbit 1 / 2 0.135 / 0.121 -> 0.119 / 0.100, inflating orbit 0.023 / 0.040 / 0.024 ->
+  0.019 / 0.025 / 0.023, inflating wobble 0.90-0.94x, face 1 0.080 -> 0.076. Worse: face 0
+  0.0455 -> 0.0523 (rigid 0.121), inflating shaky 0 / 2 0.014 / 0.016 -> 0.018 / 0.020 (rigid
+  0.073), bending wobble 0.143 / 0.168 / 0.148 -> 0.156 / 0.188 / 0.163, twisting wobble 0 / 1
+  0.217 / 0.161 -> 0.230 / 0.177, bending orbit 0 0.155 -> 0.161, articulated wobble 1 0.135 ->
+  0.140. NOT fixed: waving 0.21-0.25 -> 0.21-0.24 (rigid 0.17; wobble waving already beat
+  rigid) and bending shaky 2 0.1745 -> 0.164 (rigid 0.134). Cost: ~40 % more CPU per solve
+  (face 99 x 2000 ~8 -> 11 s on the shared machine). Variants measured on the same 53 cases
+  (all without the depth-axis restriction and the fade, which leave the S# gap open: 2.6e-3,
+  reprojection 13 % on test_admm's sheet at w = 0.5): rigid (no scale) w = 0.5: 0.987, worse on
+  17, inflating 2-3.4x (0.014 -> 0.048); similarity w = 0.5: 0.942, worse on 13; w = 0.2:
+  0.966; groups of 250 (K_s = P / (40 (N_s + 1))): 0.947, waving 0.20-0.21 but face 0 1.23x,
+  inflating shaky 0 2.1x. Smaller rigid groups are worse (12 groups of ~42: waving 0.254, face
+  0 1.08x). Unscaled similarity fits (scale drift) diverged.
 Sparse mocap (rotations from estimate_rotations, K_rot='auto'; e3D none / temporal = both):
 drink 0.0133 / 0.0078, pickup 0.0260 / 0.0196, yoga 0.0208 / 0.0178, dance 0.1241 / 0.1241,
 Torresani face 0.0168 / 0.0159, shark 0.1175 / 0.1177 (spatial auto-off there, see above).
@@ -180,6 +215,16 @@ Tried and NOT adopted (no general gain):
   (0.171 -> 0.187): no threshold separates them, so no rule was adopted. Synthetic seeds 1-2
   show more kinds worse than rigid with the defaults (bending orbit/shaky seeds 1, 2:
   0.167-0.175 vs rigid 0.134-0.147; articulated orbit/shaky seed 2: 0.142-0.144 vs 0.118).
+* Smaller / more spatial groups with lower rank (branch local; 16 screening cases: the
+  failures plus mocap pickup/shark/Torresani face, face 0/2, inflating, twisting): N_s = 3
+  with K_s auto (6 groups of ~83): waving orbit 0 0.2507 -> 0.2500, all others within 1e-3
+  except articulated orbit/shaky 2 0.130 / 0.141 -> 0.138 / 0.145, inflating orbit 0 0.023 ->
+  0.027, face 0 0.0455 -> 0.0472; N_s = 3, K_s = P / (10 (N_s + 1)) (12 groups, faces 50):
+  changes <= 0.002 (waving 0.2506), but shark gets K_s = 2 and the spatial branch (0.089 ->
+  0.108); N_s = 4, K_s = P / (10 (N_s + 1)): all within 1e-4. The ground truth IS piecewise
+  rigid (GT shapes projected onto piecewise-rigid motion, 4 / 12 / 25 groups: waving orbit 0
+  e3D 0.116 / 0.061 / 0.031, bending shaky 2 0.034 / 0.010 / 0.004), but a rank constraint
+  cannot express rigidity (see local_rigidity above, which does).
 * Warm start from the rigid shape: shark 0.051 (warm_beta0 = 1) but pickup 0.26, face 0.23.
 * Rigid-depth prior (branch accuracy3, commit f428af5, reverted): ``(mu/2)||z - z_rigid||^2`` on
   the camera-frame depths towards the Tomasi-Kanade shape's (sign by the smaller nuclear norm
@@ -411,6 +456,10 @@ class GrassmannNRSfM:
                          'float in [0, 1]'),
         'regroup_every': ('iterations between xi regroupings (0: never regroup)', 'int >= 0'),
         'zeta_weight': ("1 = the paper's rank-N projection; < 1 relaxes it", 'float in [0, 1]'),
+        'local_rigidity': ('weight w of a pull, before zeta_s, of each spatial group\'s '
+                           'depths towards its best rigid motion up to a per-frame scale; '
+                           'fades as w min(1, 1/beta); 0 = off (the paper)',
+                           'float in [0, 1]'),
         'power_steps': ('warm-started power iterations per ADMM iteration for spatial bases',
                         'int >= 1'),
         'delta': ('Omega safeguard: adds delta * trace(Omega)/K * I', 'float >= 0'),
@@ -429,7 +478,8 @@ class GrassmannNRSfM:
                  lambda4=0.1, K_rot='auto', rotations='auto', K_s='auto', K_t='auto',
                  N_s='auto', N_t='auto',
                  sigma_eps=4.0, affinity_min=0.5, regroup_every=10, zeta_weight=1.0,
-                 power_steps=1, delta=1e-8, rho=1.2, beta0=1e-3, beta_max=1e6,
+                 local_rigidity=0.5, power_steps=1, delta=1e-8, rho=1.2, beta0=1e-3,
+                 beta_max=1e6,
                  warm_beta0=0.01, eps=1e-12, max_iter=500, spatial=True, temporal=True,
                  random_state=0):
         self.gamma = gamma
@@ -448,6 +498,7 @@ class GrassmannNRSfM:
         self.affinity_min = affinity_min
         self.regroup_every = regroup_every
         self.zeta_weight = zeta_weight
+        self.local_rigidity = local_rigidity
         self.power_steps = power_steps
         self.delta = delta
         self.rho = rho
@@ -487,7 +538,7 @@ class GrassmannNRSfM:
             p[name] = _positive(name, getattr(self, name), allow_zero=True)
         for name in ('sigma_eps', 'beta0', 'beta_max', 'warm_beta0'):
             p[name] = _positive(name, getattr(self, name))
-        for name in ('affinity_min', 'zeta_weight'):
+        for name in ('affinity_min', 'zeta_weight', 'local_rigidity'):
             value = _positive(name, getattr(self, name), allow_zero=True)
             if value > 1:
                 raise InvalidInputError(f'{name} must be in [0, 1]; got {value!r}')
@@ -785,6 +836,7 @@ class _State:
         self.R2 = R[:, :2, :].astype(dt)                           # (F, 2, 3) cameras
         self.Rs = R.astype(dt)                                     # (F, 3, 3)
         self.Rt = np.ascontiguousarray(self.Rs.transpose(0, 2, 1))
+        self.depth_axes = R[:, 2, :]                               # (F, 3) world frame
         self.tall = F > 3 * P
         self.width = P if self.tall else max(1, min(P, BLOCK_BYTES // (24 * F)))
         self.blocks = column_blocks(self.s_edges, self.width)
@@ -852,6 +904,12 @@ class _State:
                                                     self.p['power_steps'])
 
     def _zeta_group(self, k):
+        """zeta_s of group k: the local-rigidity depth pull (fading with beta), then the
+        paper's rank-N_s reconstruction."""
+        if self.p['local_rigidity'] > 0:
+            weight = self.p['local_rigidity'] * min(1.0, 1.0 / self.beta)
+            gm.rigid_projection(self._group(k), self.F, weight, similarity=True,
+                                axes=self.depth_axes)
         gm.zeta(self._group(k), self.s_edges[k:k + 2] - self.s_edges[k], self.N_s,
                 self.p['zeta_weight'], self.s_bases[k:k + 1])
 
