@@ -95,15 +95,17 @@ the paper's noise level: the rank-N zeta projections denoise. Choices behind tha
   (162 moves) but e3D is unchanged (0.0270 vs 0.0271). Kept as the paper describes, cheap
   (every 10 iterations).
 * zeta_weight = 1 (the paper); 0.5 gave no gain.
-* local_rigidity (branch local; default 0 = off, measured at 0.5; NOT the default because with
-  it the dense float32 storage path drifts from float64 beyond test_grassmann's bound: max |dS|
-  1.2e-2 of max |S| vs 2.6e-4 without (e3D equal: 0.1110 / 0.1112; fading earlier, min(1,
-  0.1/beta) / min(1, 0.01/beta): 6.1e-3 / 3.7e-3), i.e. the pull makes the path sensitive to
-  rounding; warm starts (sliding windows) skip it: streamed bending 60 x 400 0.1710 -> 0.1854
-  with it). What it does: before the paper's zeta_s, each spatial group's
-  depths are pulled towards its best locally rigid motion up to a per-frame scale,
-  ``s_f Q_f M + t_f`` (rest shape M, rotation Q_f, scale s_f >= 0, centroid t_f; 3
-  alternations of per-frame Procrustes and averaging, grassmann.rigid_projection), moving each
+* local_rigidity (branch local; default 0 = off, measured at 0.5). NOT the default: with it
+  the dense float32 storage path drifts from float64 beyond test_grassmann's bound (max |dS|
+  1.2e-2 of max |S| vs 2.6e-4 without; e3D equal, 0.1110 / 0.1112; fading earlier, min(1,
+  0.1/beta) / min(1, 0.01/beta): 6.1e-3 / 3.7e-3): the pull makes the path sensitive to
+  rounding, mostly through xi_s (regrouping moves 471 points in float64, 105 in float32; with
+  regroup_every = 0 the drift is 3.8e-3, still above the bound). Warm starts (sliding
+  windows) skip it (streamed bending 60 x 400 0.1710 -> 0.1854 with it). What it does: before
+  the paper's zeta_s, each spatial group's depths are pulled towards its best locally rigid
+  motion up to a per-frame scale, ``s_f Q_f M + t_f`` (rest shape M, rotation Q_f, scale
+  s_f >= 0, centroid t_f; 3 alternations of per-frame Procrustes and averaging,
+  grassmann.rigid_projection), moving each
   frame's points ONLY along that frame's camera depth axis (the image coordinates are the
   data's), with weight ``w_eff = local_rigidity * min(1, 1/beta)`` (beta on unit-RMS W: the
   pull acts while the penalty is below the data term's weight, then fades, so the constraints
