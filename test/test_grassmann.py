@@ -40,6 +40,32 @@ def test_zeta_is_exact_on_low_rank_groups_and_truncates_otherwise():
     assert np.allclose(half, 0.5 * (full + out))
 
 
+def random_rotations(rng, F):
+    Q, _ = np.linalg.qr(rng.normal(size=(F, 3, 3)))
+    return Q * np.sign(np.linalg.det(Q))[:, None, None]
+
+
+def test_rigid_projection_keeps_rigid_motion_and_pulls_others_towards_it():
+    rng = np.random.default_rng(7)
+    F, n = 12, 30
+    rest = rng.normal(size=(3, n))
+    Q = random_rotations(rng, F)
+    moving = (Q @ rest + rng.normal(size=(F, 3, 1))).reshape(3 * F, n)
+    assert np.allclose(gm.rigid_projection(moving.copy(), F), moving, atol=1e-9)
+    scaled = (Q @ rest * rng.uniform(0.5, 2.0, size=(F, 1, 1))).reshape(3 * F, n)
+    assert not np.allclose(gm.rigid_projection(scaled.copy(), F), scaled, atol=1e-3)
+    assert np.allclose(gm.rigid_projection(scaled.copy(), F, similarity=True), scaled,
+                       atol=1e-9)
+    noisy = moving + 0.3 * rng.normal(size=moving.shape)
+    full = gm.rigid_projection(noisy.copy(), F, steps=10)
+    assert np.linalg.norm(full - moving) < 0.7 * np.linalg.norm(noisy - moving)
+    half = gm.rigid_projection(noisy.copy(), F, weight=0.5, steps=10)
+    assert np.allclose(half, 0.5 * (noisy + full), atol=1e-9)
+    in_place = noisy.astype(np.float32)
+    assert gm.rigid_projection(in_place, F, steps=10) is in_place
+    assert np.allclose(in_place, full, atol=1e-4)
+
+
 def test_c_update_satisfies_its_optimality_condition():
     rng = np.random.default_rng(2)
     bases = random_bases(rng, 6, 20, 3)
