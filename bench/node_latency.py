@@ -99,13 +99,13 @@ def accuracy(factory, warm_cls, frames=90, tracks=1000):
     order = np.argsort(ids)
     stamps = np.arange(frames)
     frames_in = [(ids, W[2 * f:2 * f + 2].T) for f in range(frames)]
-    for warm in (False, True):
+    for warm in ('model', 'off', 'full'):
         counting = Counting(factory)
         pipe = SlidingWindow(counting, warm_start=warm, warm_start_class=warm_cls)
         results = reconstruct_sequence(pipe, stamps, frames_in)
         streamed = np.vstack([r.xyz[np.searchsorted(r.ids, ids[order])].T for r in results])
         later = counting.fits[1:]
-        print(f'warm start {"on " if warm else "off"}: windows after the first: iterations '
+        print(f'warm_start {warm:>5}: windows after the first: iterations '
               f'{np.mean([f[0] for f in later]):.1f}, CPU {np.mean([f[1] for f in later]):.3f} '
               f's per window; streaming e3D {e3d(streamed, S[:, order]):.4f}')
     whole = factory().fit(W)

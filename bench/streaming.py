@@ -106,7 +106,7 @@ def compare(name, W, S, factory):
         iterations, seconds = per_window(counting.fits, pipe.solve_cpu)
         row.update({f'e3d_stream_{label}': e3d(S_stream, S), f'iterations_{label}': iterations,
                     f'cpu_per_window_{label}_s': seconds})
-    row['e3d_rigid_per_window'] = e3d(streamed(W, RigidSolver, warm_start=False,
+    row['e3d_rigid_per_window'] = e3d(streamed(W, RigidSolver, warm_start='off',
                                                context_frames=0)[0], S)
     row['windows'] = len(counting.fits)
     common.log(f"{name:>16} F={row['F']:4d} P={row['P']:5d}  e3D whole {row['e3d_whole']:.4f}"

@@ -71,15 +71,15 @@ NODE_PARAMS = (
               'previous frame starts a new sequence (all ids changed).', range=(4, 10000000)),
     ParamSpec('warm_start', 'model', str,
               "What each window's solve takes from the previous window's solution on the "
-              "overlapping frames and tracks. 'model' (default): the spatial groups of the "
-              "tracks and the rotation method (Dai's or rigid, checked again once half the "
-              "frames are new); rotations are re-estimated over window + context and shapes "
-              "start from the solver's own start: the same accuracy as 'off' at about half the "
-              "CPU per window on sparse tracks (WARMSTART_FIGURES). 'full': also the rotations "
-              "of the overlapping frames (fixed) and their shapes: fewer iterations, but it "
-              "holds on to earlier windows' errors (WARMFULL_FIGURES). 'off': every window from "
-              "the solver's own start. A window without context frames (the first) starts from "
-              'the rigid factorisation.', choices=('model', 'full', 'off')),
+              "overlapping frames and tracks. 'model' (default): the tracks' spatial groups and "
+              "the rotation method (Dai's or rigid; checked again once half the frames are "
+              'new), while rotations are re-estimated over window + context and shapes start '
+              "from the solver's own start: accuracy as 'off' (README: streaming) at 10-50 % "
+              "less CPU per window. 'full': also the overlapping frames' rotations (fixed) and "
+              "shapes: fewer iterations still, but it keeps the earlier windows' errors "
+              "(Torresani face 0.083 vs 0.060). 'off': each window from the solver's own "
+              'start. A window without context frames (the first) starts from the rigid '
+              'factorisation.', choices=('model', 'full', 'off')),
     ParamSpec('context_frames', 60, int,
               'Earlier frames solved again with each window (not republished): the shape '
               'prior sees window + context frames. 0: the window alone.', range=(0, 100000)),
@@ -87,11 +87,11 @@ NODE_PARAMS = (
               'Older frames (beyond context_frames) also solved again with each window, spread '
               'evenly over the sequence so far, so long sequences keep their shape prior '
               "(Torresani face streaming e3D 0.063 -> 0.060; with warm_start 'full' it did not "
-              "help, 0.080 -> 0.083). 0: none; unused when context_frames is "
-              '0.', range=(0, 100000)),
+              'help, 0.080 -> 0.083). 0: none; unused when context_frames is 0.',
+              range=(0, 100000)),
     ParamSpec('warm_rotations', 'solver', str,
-              "Rotations of a fully warm-started solve (warm_start 'full'): 'solver' (previous ones "
-              "fixed, new ones from the solver's estimate), 'refine' (Dai's over all frames, "
+              "Rotations of a fully warm-started solve (warm_start 'full'): 'solver' (previous "
+              "ones fixed, new ones from the solver's estimate), 'refine' (Dai's over all frames, "
               'aligned to the previous solution: slightly more accurate, one more rotation '
               "estimate per window), 'fit' (previous ones; new frames fitted to the previous "
               'shape: cheapest, good on dense surfaces, poor on sparse mocap).',

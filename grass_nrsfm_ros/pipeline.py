@@ -26,24 +26,34 @@ Policies (the node reports each as it happens):
   next solved window publishes every unpublished frame it covers; frames that fell out of all
   solved windows are counted in ``stats['frames_lost']``.
 
-Default (``warm_start=False``, ``key_frames=30``): each window is solved together with up to
-``context_frames`` earlier frames and ``key_frames`` older ones spread evenly over the sequence
-(KeyFrames), from the solver's own start (its rotation estimate and initial shapes); a window
-alone (the first of a sequence) starts from the rigid factorisation: a 30-frame window holds
-too little rotation for the nuclear norm to create depth from scratch (dense face, 60 frames:
-first window from scratch e3D 0.225, rigid 0.116, solver started from rigid 0.109).
-Warm start (``warm_start=True``): each window's solve starts from the previous solution on the
-overlapping frames and tracks (rotations fixed, camera-frame shapes, spatial groups) through
-``solver.fit(W, init=WarmStart(...))``; new frames start from the newest overlapping frame's
-rotation and depth, new tracks from the depth and group of their nearest old track in the
-image. It saves 10-20 % of the iterations (84 vs 101 on a bending window) but holds on to the
-earlier windows' errors, e.g. the first window's rotations of a near-static start. Measured
-(window 30 / stride 10, context 60; streaming e3D warm -> default): Torresani face 0.080 ->
-0.060 (rigid per window 0.063), pickup 0.059 -> 0.036, dense face 99 x 3000 0.123 -> 0.116,
-inflating 0.054 -> 0.048, dense face 60 x 3000 0.063 -> 0.062, bending 60 x 1000 0.193 ->
-0.181 (with the solver's rotation check; 0.204 before it), at ~1.7x the CPU per window (cold
-solves use the solver's smoothness prior). Key frames with the warm start did not help (face
-0.080 -> 0.083).
+Context: each window is solved together with up to ``context_frames`` (60) earlier frames and
+``key_frames`` (30) older ones spread evenly over the sequence (KeyFrames), so the shape prior
+and the rotation estimate see more than the window; a window alone (the first of a sequence)
+starts from the rigid factorisation: 30 frames hold too little rotation for the nuclear norm to
+create depth from scratch (dense face, 60 frames: first window from scratch e3D 0.225, rigid
+0.116, solver started from rigid 0.109).
+
+Warm start (``warm_start``), what a solve takes from the previous window's solution:
+
+* ``'model'`` (default): the spatial groups of the overlapping tracks (new tracks take their
+  nearest old track's) and the rotation method the solver's check chose (Dai's or rigid),
+  carried until the frames new since that check reach RECHECK_SHARE of the frames it was made
+  on. Rotations are re-estimated over the whole problem and shapes start from the solver's own
+  start. The groups replace k-means++, the carried method skips the check's two small solves.
+* ``'full'``: also the rotations of the overlapping frames (fixed) and their camera-frame
+  shapes (:meth:`SlidingWindow._full_warm_start`); fewer iterations (84 vs 101 on a bending
+  window) but it keeps the earlier windows' errors.
+* ``'off'``: every window with context from the solver's own start.
+
+Why not carry rotations and shapes by default (streamed e3D, window 30 / stride 10, context 60,
+key frames 30; 'off' first): rotations of overlapping frames kept fixed mix estimates from
+different windows (Dai's factorisation differs per window by more than a world rotation):
+carried rotations with shapes from the solver's start gave pickup 0.036 -> 0.065, Torresani
+face 0.060 -> 0.059, shark 0.131 -> 0.114; shapes carried under fresh rotations lose the
+nuclear norm's continuation from a small beta (pickup 0.054, Torresani face 0.072); carrying
+Dai's rank K pins it while it still grows with the frames (pickup K 5 -> 6: 0.051). 'full'
+after its first full-context window only: Torresani face 0.063, pickup 0.062. Measured for
+'model' against 'off': README (streaming) and bench/results/streaming.json.
 Alignment: a window's camera-frame shapes are defined up to the sign of depth (the orthographic
 reflection) and a depth offset; each window's depth is centred per frame and its sign chosen to
 agree with the previous window on the overlap, so published clouds keep one orientation.

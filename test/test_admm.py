@@ -211,6 +211,30 @@ def test_invalid_warm_start_raises():
         GrassmannNRSfM().fit(W, init=WarmStart(R=R, known=np.ones(3, bool)))
     with pytest.raises(InvalidInputError, match='init.groups'):
         GrassmannNRSfM().fit(W, init=WarmStart(R=R, groups=np.zeros(7, int)))
+    with pytest.raises(InvalidInputError, match='init.rotation_method'):
+        GrassmannNRSfM().fit(W, init=WarmStart(rotation_method='auto'))
+
+
+def test_given_rotation_method_skips_the_check_and_is_reported():
+    from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
+    W, S, R = deforming_sheet(F=20, P=300, seed=2)
+    checked = GrassmannNRSfM().fit(W).report
+    assert checked.rotation_checked and checked.rotation_method in ('dai', 'rigid')
+    res = GrassmannNRSfM().fit(W, init=WarmStart(rotation_method='rigid'))
+    assert res.report.rotation_method == 'rigid' and not res.report.rotation_checked
+    np.testing.assert_allclose(res.R, rigid_factorisation(W)[0])
+    dai = GrassmannNRSfM().fit(W, init=WarmStart(rotation_method='dai')).report
+    assert dai.rotation_method == 'dai' and dai.K_rot is not None
+    assert GrassmannNRSfM().fit(W, init=WarmStart(R=R)).report.rotation_method == 'given'
+
+
+def test_one_given_group_switches_the_spatial_branch_off_like_auto():
+    W, S, R = deforming_sheet(F=10, P=200, seed=3)     # 200 points: 'auto' gives one group
+    auto = GrassmannNRSfM().fit(W, init=WarmStart(R=R))
+    given = GrassmannNRSfM().fit(W, init=WarmStart(R=R, groups=np.zeros(200, int)))
+    assert any('spatial branch off' in n for n in auto.report.notes)
+    assert any('init.groups hold one group' in n for n in given.report.notes)
+    np.testing.assert_allclose(given.S, auto.S)
 
 
 def test_parameter_specs_document_every_parameter():

@@ -49,6 +49,7 @@ class RigidWarmStart:
     S: np.ndarray = None
     known: np.ndarray = None
     groups: np.ndarray = None
+    rotation_method: str = None
 
 
 def _camera_rows(A):
@@ -189,7 +190,7 @@ def test_streaming_accuracy_approaches_whole_sequence():
     assert e3d_akhter(streamed, S) < 0.07
 
 
-@pytest.mark.parametrize('warm_start', [False, True])
+@pytest.mark.parametrize('warm_start', ['model', 'off', 'full'])
 def test_depth_sign_aligned_across_windows(warm_start):
     W, S, ids = make_sequence(F=90, noise=0.5, seed=3)
     aligned = stacked(stream(W, ids, warm_start=warm_start)[2], ids)
@@ -199,7 +200,7 @@ def test_depth_sign_aligned_across_windows(warm_start):
 def test_warm_start_carries_previous_solution_on_overlap():
     W, S, ids = make_sequence(F=40, noise=0.5)
     seen = []
-    p = SlidingWindow(recording(seen), warm_start=True, warm_start_class=RigidWarmStart,
+    p = SlidingWindow(recording(seen), warm_start='full', warm_start_class=RigidWarmStart,
                       context_frames=0,
                       warm_rotations='solver')
     frames = frames_of(W, ids)
@@ -224,7 +225,7 @@ def test_warm_start_carries_previous_solution_on_overlap():
 def test_context_frames_are_solved_again_but_not_republished():
     W, S, ids = make_sequence(F=60, noise=0.5)
     seen = []
-    p = SlidingWindow(recording(seen), warm_start=True, warm_start_class=RigidWarmStart,
+    p = SlidingWindow(recording(seen), warm_start='full', warm_start_class=RigidWarmStart,
                       context_frames=15,
                       warm_rotations='fit', key_frames=0)
     frames = frames_of(W, ids)
@@ -299,7 +300,7 @@ def test_key_frames_spread_evenly_over_the_older_past():
 def test_warm_start_fills_new_tracks_from_nearest_old_track():
     W, S, ids = make_sequence(F=40, P=300, noise=0.0)
     seen = []
-    p = SlidingWindow(recording(seen), warm_start=True, warm_start_class=RigidWarmStart,
+    p = SlidingWindow(recording(seen), warm_start='full', warm_start_class=RigidWarmStart,
                       context_frames=0,
                       warm_rotations='solver')
     late = ids[:30]
