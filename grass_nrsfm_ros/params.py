@@ -74,12 +74,12 @@ NODE_PARAMS = (
               "overlapping frames and tracks. 'model' (default): the tracks' spatial groups and "
               "the rotation method (Dai's or rigid; checked again once half the frames are "
               'new), while rotations are re-estimated over window + context and shapes start '
-              "from the solver's own start: accuracy as 'off' (README: streaming) at 10-50 % "
-              "less CPU per window. 'full': also the overlapping frames' rotations (fixed) and "
-              "shapes: fewer iterations still, but it keeps the earlier windows' errors "
-              "(Torresani face 0.083 vs 0.060). 'off': each window from the solver's own "
-              'start. A window without context frames (the first) starts from the rigid '
-              'factorisation.', choices=('model', 'full', 'off')),
+              "from the solver's own start: e3D as 'off' (shark better) at 36-40 % less CPU "
+              "per window on long sequences (README: streaming). 'full': also the overlapping "
+              "frames' rotations (fixed) and shapes: 45-70 % less CPU again, but it keeps the "
+              "earlier windows' errors (Torresani face 0.083 vs 0.060). 'off': each window "
+              "from the solver's own start. A window without context frames (the first) starts "
+              'from the rigid factorisation.', choices=('model', 'full', 'off')),
     ParamSpec('context_frames', 60, int,
               'Earlier frames solved again with each window (not republished): the shape '
               'prior sees window + context frames. 0: the window alone.', range=(0, 100000)),
