@@ -48,11 +48,12 @@ Warm start (``warm_start``), what a solve takes from the previous window's solut
 Why not carry rotations and shapes by default (streamed e3D, window 30 / stride 10, context 60,
 key frames 30; 'off' first): rotations of overlapping frames kept fixed mix estimates from
 different windows (Dai's factorisation differs per window by more than a world rotation):
-carried rotations with shapes from the solver's start gave pickup 0.036 -> 0.065, Torresani
-face 0.060 -> 0.059, shark 0.131 -> 0.114; shapes carried under fresh rotations lose the
-nuclear norm's continuation from a small beta (pickup 0.054, Torresani face 0.072); carrying
-Dai's rank K pins it while it still grows with the frames (pickup K 5 -> 6: 0.051). 'full'
-after its first full-context window only: Torresani face 0.063, pickup 0.062. Measured for
+carried from the first full-context window on, with shapes from the solver's start, pickup
+0.036 -> 0.065 (Torresani face 0.060 -> 0.059, shark 0.131 -> 0.114); shapes carried under
+fresh rotations lose the nuclear norm's continuation from a small beta (pickup 0.039, Torresani
+face 0.072); 'full' from the first full-context window on, Torresani face 0.063. Carrying Dai's
+rank K kept the accuracy (pickup 0.035, face 0.058) but saves nothing: the nested rank search
+still runs every rank up to K (and K still grows with the frames: pickup 5 -> 6). Measured for
 'model' against 'off': README (streaming) and bench/results/streaming.json.
 Alignment: a window's camera-frame shapes are defined up to the sign of depth (the orthographic
 reflection) and a depth offset; each window's depth is centred per frame and its sign chosen to
