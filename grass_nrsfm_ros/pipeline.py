@@ -309,17 +309,21 @@ class SlidingWindow:
                 raise FrameError(f'duplicate track id {int(ids[1:][ids[1:] == ids[:-1]][0])}')
             new_sequence = bool(self._frames) and self._shared(
                 Frame(stamp_ns, frame_id, ids, uv), self._frames[-1]) < self.min_tracks
-            if new_sequence:
-                pass                            # its stamps are not compared with the old ones
-            elif self._emitted_until is not None and stamp_ns <= self._emitted_until:
-                raise FrameError(f'late frame: stamp {stamp_ns} is not newer than the last '
-                                 f'emitted window ({self._emitted_until})')
-            elif any(f.stamp_ns == stamp_ns for f in self._frames):
-                raise FrameError(f'duplicate stamp {stamp_ns} (the first frame is kept)')
+            if not new_sequence:                # a new sequence's stamps start afresh
+                self._check_stamp(stamp_ns)
         except FrameError:
             self._count('refused')
             raise
         return Frame(stamp_ns, frame_id, ids, uv), new_sequence
+
+    def _check_stamp(self, stamp_ns):
+        """Raise FrameError for a stamp that is late (not newer than the last emitted window)
+        or a duplicate of a buffered frame's."""
+        if self._emitted_until is not None and stamp_ns <= self._emitted_until:
+            raise FrameError(f'late frame: stamp {stamp_ns} is not newer than the last '
+                             f'emitted window ({self._emitted_until})')
+        if any(f.stamp_ns == stamp_ns for f in self._frames):
+            raise FrameError(f'duplicate stamp {stamp_ns} (the first frame is kept)')
 
     @staticmethod
     def _shared(a, b):
