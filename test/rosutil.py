@@ -62,8 +62,11 @@ class Feeder:
         return condition()
 
     def connected(self):
-        return (self.pub.get_subscription_count() >= 1
-                and self.node.count_publishers(self.node.get_namespace() + '/points') > 0)
+        """Both directions matched: the node reads our ``tracks`` and our ``points`` reader is
+        matched to its writer (seeing the writer in the graph is not enough: clouds published
+        before the reader matched are gone, volatile durability)."""
+        return self.pub.get_subscription_count() >= 1 and \
+            self.points_sub.get_publisher_count() >= 1
 
     def use_depth(self, depth):
         """Publish ``tracks`` with a KEEP_LAST history of ``depth`` (reliable) from now on."""
