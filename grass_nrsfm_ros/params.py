@@ -60,6 +60,10 @@ class ParamSpec:
         return value
 
 
+#: values of ``warm_start`` and ``warm_rotations`` (SlidingWindow checks them too)
+WARM_STARTS = ('model', 'full', 'off')
+WARM_ROTATIONS = ('refine', 'fit', 'solver')
+
 NODE_PARAMS = (
     ParamSpec('window_size', 30, int, 'Frames per sliding window solved together.',
               range=(3, 100000)),
@@ -79,7 +83,7 @@ NODE_PARAMS = (
               "frames' rotations (fixed) and shapes: 45-70 % less CPU again, but it keeps the "
               "earlier windows' errors (Torresani face 0.083 vs 0.060). 'off': each window "
               "from the solver's own start. A window without context frames (the first) starts "
-              'from the rigid factorisation.', choices=('model', 'full', 'off')),
+              'from the rigid factorisation.', choices=WARM_STARTS),
     ParamSpec('context_frames', 60, int,
               'Earlier frames solved again with each window (not republished): the shape '
               'prior sees window + context frames. 0: the window alone.', range=(0, 100000)),
@@ -95,7 +99,7 @@ NODE_PARAMS = (
               'aligned to the previous solution: slightly more accurate, one more rotation '
               "estimate per window), 'fit' (previous ones; new frames fitted to the previous "
               'shape: cheapest, good on dense surfaces, poor on sparse mocap).',
-              choices=('refine', 'fit', 'solver')),
+              choices=WARM_ROTATIONS),
     ParamSpec('align_windows', True, bool,
               "Flip each window's depth to agree with the previous window on the overlap, so "
               'published clouds keep one orientation over time.'),

@@ -69,17 +69,22 @@ import numpy as np
 
 from grass_nrsfm_ros.cloud import strictly_increasing
 from grass_nrsfm_ros.nrsfm.measurement import as_frames, centre
+from grass_nrsfm_ros.params import WARM_ROTATIONS, WARM_STARTS
 
 MIN_WINDOW_FRAMES = 3
 #: a context frame joins a solve only while the tracks common to it, the newer context frames
 #: and the window stay at least this share of the window's tracks
 CONTEXT_TRACKS = 0.9
-WARM_ROTATIONS = ('solver', 'fit', 'refine')
-WARM_STARTS = ('model', 'full', 'off')
 #: warm_start 'model': the rotation method chosen by the solver's check on a problem with full
 #: context is carried until the frames new since that check reach this share of its frames
 RECHECK_SHARE = 0.5
 DEPTH_FLIP = np.diag([1.0, 1.0, -1.0])
+
+
+def common_ids(a, b):
+    """The ids in both sorted unique id arrays ``a`` and ``b`` (``a`` itself when they are equal:
+    the usual case, with no set operation)."""
+    return a if np.array_equal(a, b) else np.intersect1d(a, b, assume_unique=True)
 
 
 class KeyFrames:
@@ -327,15 +332,12 @@ class SlidingWindow:
 
     @staticmethod
     def _shared(a, b):
-        if np.array_equal(a.ids, b.ids):                 # the same tracks: no set operation
-            return int(a.ids.size)
-        return int(np.intersect1d(a.ids, b.ids, assume_unique=True).size)
+        return int(common_ids(a.ids, b.ids).size)
 
     def _emit(self, frames):
         common = frames[0].ids
         for f in frames[1:]:
-            if not np.array_equal(common, f.ids):
-                common = np.intersect1d(common, f.ids, assume_unique=True)
+            common = common_ids(common, f.ids)
         uv = np.stack([f.uv if f.ids.size == common.size else
                        f.uv[np.searchsorted(f.ids, common)] for f in frames])    # (F, P, 2)
         W = uv.transpose(0, 2, 1).reshape(2 * len(frames), common.size)
@@ -408,7 +410,7 @@ class SlidingWindow:
         ids = window.ids
         kept = 0
         for frame in reversed(context):
-            common = np.intersect1d(ids, frame.ids, assume_unique=True)
+            common = common_ids(ids, frame.ids)
             if common.size < max(self.min_tracks, CONTEXT_TRACKS * window.ids.size):
                 break
             ids, kept = common, kept + 1
