@@ -10,6 +10,7 @@ find it beside a reconstruction.
 import numpy as np
 
 from grass_nrsfm_ros.cli import UserError
+from grass_nrsfm_ros.commands.npz import load_tracks
 
 
 def add_arguments(parser):
@@ -26,22 +27,12 @@ def add_arguments(parser):
     parser.add_argument('--no-gt', action='store_true', help='leave ground truth out')
 
 
-def load_npz(path):
-    """``(W, S or None, visible or None)`` from an .npz."""
-    with np.load(path, allow_pickle=False) as npz:
-        if 'W' not in npz:
-            raise UserError(f'{path} has no array W (has {sorted(npz.files)})')
-        S = next((npz[k] for k in ('S_gt', 'S') if k in npz), None)
-        visible = npz['visible'] if 'visible' in npz else None
-        return np.asarray(npz['W'], np.float64), S, visible
-
-
 def run(args):
     from grass_nrsfm_ros import bag
 
     if args.rate <= 0:
         raise UserError(f'--rate must be positive; got {args.rate}')
-    W, S, visible = load_npz(args.input)
+    W, S, visible = load_tracks(args.input)
     F = W.shape[0] // 2
     stamps = np.round((args.start + np.arange(F) / args.rate) * 1e9).astype(np.int64)
     counts = bag.tracks_bag_from_arrays(

@@ -1,7 +1,10 @@
-"""``grass-nrsfm evaluate OUT.npz GT.npz``: e3D of a reconstruction against ground truth."""
-import numpy as np
+"""``grass-nrsfm evaluate OUT.npz GT.npz``: e3D of a reconstruction against ground truth.
 
+When OUT reconstructs only some of the input's tracks (``points``, written by ``reconstruct
+--complete-tracks``), the ground truth's matching columns are compared.
+"""
 from grass_nrsfm_ros.cli import UserError
+from grass_nrsfm_ros.commands.npz import load_shapes
 from grass_nrsfm_ros.nrsfm.metrics import e3d, e3d_akhter
 
 
@@ -12,16 +15,20 @@ def add_arguments(parser):
                         help='also fit a per-frame scale in the Procrustes alignment')
 
 
-def load_shapes(path):
-    """``S: (3F, P)`` from an .npz, or UserError."""
-    with np.load(path) as npz:
-        if 'S' not in npz:
-            raise UserError(f'{path} has no array S (has {sorted(npz.files)})')
-        return np.asarray(npz['S'], dtype=np.float64)
+def matched_ground_truth(S_gt, points, n_points):
+    """The ground-truth columns ``(3F, P')`` the estimate's ``points`` name (all if None)."""
+    if points is None or S_gt.shape[1] == n_points:
+        return S_gt
+    if points.ndim != 1 or points.size != n_points or points.dtype.kind not in 'iu' \
+            or points.min(initial=0) < 0 or points.max(initial=0) >= S_gt.shape[1]:
+        raise UserError(f"the estimate's points do not index the ground truth's "
+                        f'{S_gt.shape[1]} columns')
+    return S_gt[:, points]
 
 
 def run(args):
-    S_est, S_gt = load_shapes(args.estimate), load_shapes(args.ground_truth)
+    (S_est, points), (S_gt, _) = load_shapes(args.estimate), load_shapes(args.ground_truth)
+    S_gt = matched_ground_truth(S_gt, points, S_est.shape[1])
     if S_est.shape != S_gt.shape:
         raise UserError(f'shapes differ: estimate {S_est.shape}, ground truth {S_gt.shape}')
     print(f'e3D (per-frame Procrustes, no scale): {e3d(S_est, S_gt):.4f}')

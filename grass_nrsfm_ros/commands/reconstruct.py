@@ -2,8 +2,11 @@
 
 ``IN.npz`` holds ``W: (2F, P)`` (and optionally ground truth ``S: (3F, P)``, then e3D is
 printed); ``OUT.npz`` gets ``S``, ``R``, ``translation``, ``groups`` and the solver report (JSON
-string ``report``). A bag directory or ``.mcap``/``.bag`` file runs the node's sliding-window
-pipeline offline and writes an output bag.
+string ``report``). The solver needs complete tracks: an input whose ``visible: (F, P)`` marks
+entries as unobserved is refused, unless ``--complete-tracks`` keeps the tracks seen in every
+frame (their columns are saved as ``points``, which ``evaluate`` uses). A bag directory or
+``.mcap``/``.bag`` file runs the node's sliding-window pipeline offline and writes an output
+bag (there, each window uses the tracks it sees throughout).
 """
 import json
 from pathlib import Path
@@ -13,6 +16,7 @@ import time
 import numpy as np
 
 from grass_nrsfm_ros.cli import UserError
+from grass_nrsfm_ros.commands.npz import complete_tracks, load_tracks
 
 
 def add_arguments(parser):
@@ -21,6 +25,9 @@ def add_arguments(parser):
     parser.add_argument('--config', help="params.yaml (the node's file works too)")
     parser.add_argument('--topic', default='/tracks', help='tracks topic when IN is a bag')
     parser.add_argument('--quiet', action='store_true', help='no progress display')
+    parser.add_argument('--complete-tracks', action='store_true',
+                        help='when visible marks missing entries, reconstruct only the tracks '
+                             'seen in every frame (saved as `points` in OUT)')
 
 
 def solver_from_config(path):
@@ -42,8 +49,7 @@ class Progress:
     def __call__(self, iteration, report):
         if not self.enabled:
             return
-        gap = report.gaps[-1] if report.gaps else float('nan')
-        gap = max(gap.values()) if isinstance(gap, dict) else gap
+        gap = max(report.gaps[-1]) if report.gaps else float('nan')
         sys.stderr.write(f'\r  iteration {iteration:4d}  gap {gap:9.3e}  '
                          f'{time.monotonic() - self.start:6.1f} s')
         sys.stderr.flush()
@@ -53,29 +59,43 @@ class Progress:
             sys.stderr.write('\n')
 
 
-def load_tracks(path):
-    """``(W, S_gt or None)`` from an .npz."""
-    with np.load(path) as npz:
-        if 'W' not in npz:
-            raise UserError(f'{path} has no array W (has {sorted(npz.files)})')
-        S = npz['S'].astype(np.float64) if 'S' in npz else None
-        return npz['W'].astype(np.float64), S
+def observed_tracks(path, complete_only):
+    """``(W: (2F, P'), S_gt: (3F, P') or None, points: (P',) or None)`` from an .npz: all
+    tracks, or with ``complete_only`` those seen in every frame (``points``: their columns)
+    where ``visible`` marks missing entries (refused otherwise)."""
+    from grass_nrsfm_ros.nrsfm.measurement import validate_shapes
+
+    W, S_gt, visible = load_tracks(path)
+    F, P = W.shape[0] // 2, W.shape[1]
+    if S_gt is not None:                 # checked before a long solve, not after it
+        S_gt = validate_shapes(S_gt, n_frames=F, n_points=P, name=f'{path}: ground truth S')
+    if visible is None or visible.all():
+        return W, S_gt, None
+    points = complete_tracks(visible, F, P, path)
+    if not complete_only:
+        raise UserError(
+            f'{path}: visible marks {int((~visible).sum())} of {visible.size} entries as '
+            f'unobserved ({P - points.size} of {P} tracks incomplete); the solver needs '
+            f'complete tracks: --complete-tracks reconstructs the {points.size} tracks seen '
+            'in every frame')
+    print(f'{path}: keeping the {points.size} of {P} tracks seen in every frame')
+    return W[:, points], None if S_gt is None else S_gt[:, points], points
 
 
 def reconstruct_npz(args):
     from grass_nrsfm_ros.nrsfm import e3d
 
-    W, S_gt = load_tracks(args.input)
+    W, S_gt, points = observed_tracks(args.input, args.complete_tracks)
     solver, _ = solver_from_config(args.config)
     progress = Progress(not args.quiet)
-    solver.set_params(progress=progress)
     try:
-        result = solver.fit(W)
+        result = solver.fit(W, progress=progress)
     finally:
         progress.close()
     report = result.report
+    extra = {} if points is None else {'points': points}
     np.savez_compressed(args.output, S=result.S, R=result.R, translation=result.translation,
-                        groups=result.groups, report=json.dumps(report.to_dict()))
+                        groups=result.groups, report=json.dumps(report.to_dict()), **extra)
     F, P = W.shape[0] // 2, W.shape[1]
     print(f'{args.input}: F={F} P={P} K_rot={report.K_rot} iterations={report.iterations} '
           f'seconds={report.seconds["total"]:.1f} -> {args.output}')

@@ -304,7 +304,7 @@ iteration, CPU time grows linearly in P (exponent 0.92-0.96 for P = 1k..70k at F
 and costs 0.14-0.6 of one economy SVD of S# (F = 100). Memory: O(F P), nothing P x P; peak
 RSS above the loaded W for the face 687 MB -> 333 MB (``python -m bench.scale``).
 """
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 import inspect
 import time
 
@@ -356,6 +356,16 @@ class SolverReport:
     rotation_checked: bool = False               # the 'auto' check chose rotation_method
     fallback: str = None
     notes: list = field(default_factory=list)    # automatic decisions worth knowing
+
+    def to_dict(self):
+        """The report as plain JSON types (numpy scalars as numbers, tuples as lists)."""
+        def plain(value):
+            if isinstance(value, dict):
+                return {str(k): plain(v) for k, v in value.items()}
+            if isinstance(value, (list, tuple, np.ndarray)):
+                return [plain(v) for v in value]
+            return value.item() if isinstance(value, np.generic) else value
+        return plain(asdict(self))
 
 
 @dataclass

@@ -1,0 +1,41 @@
+"""Reading the commands' ``.npz`` files (the layout of ``../shared/data``: ``W: (2F, P)``,
+optional ground truth ``S: (3F, P)`` (or ``S_gt``), optional ``visible: (F, P)`` bool)."""
+import numpy as np
+
+from grass_nrsfm_ros.cli import UserError
+
+
+def load_tracks(path):
+    """``(W: (2F, P) float64, S: (3F, P) float64 or None, visible: (F, P) bool or None)``.
+
+    Only the presence of ``W`` is checked here; shapes and values are the solver's to check.
+    """
+    with np.load(path, allow_pickle=False) as npz:
+        if 'W' not in npz:
+            raise UserError(f'{path} has no array W (has {sorted(npz.files)})')
+        S = next((npz[k] for k in ('S_gt', 'S') if k in npz), None)
+        visible = np.asarray(npz['visible'], bool) if 'visible' in npz else None
+        W = np.asarray(npz['W'])
+    if W.dtype.kind not in 'fiu':
+        raise UserError(f'{path}: W must be numeric; got dtype {W.dtype}')
+    return W.astype(np.float64), None if S is None else np.asarray(S, np.float64), visible
+
+
+def load_shapes(path):
+    """``(S: (3F, P) float64, points: (P,) or None)`` from an .npz (``S``, else ``S_gt``), or
+    UserError; ``points``: the input tracks' columns that S reconstructs (None: all)."""
+    with np.load(path, allow_pickle=False) as npz:
+        key = next((k for k in ('S', 'S_gt') if k in npz), None)
+        if key is None:
+            raise UserError(f'{path} has no array S (has {sorted(npz.files)})')
+        points = np.asarray(npz['points']) if 'points' in npz else None
+        return np.asarray(npz[key], dtype=np.float64), points
+
+
+def complete_tracks(visible, n_frames, n_points, path):
+    """Column indices ``(P',)`` of the tracks seen in every frame, checking ``visible``'s
+    shape ``(F, P)``."""
+    if visible.shape != (n_frames, n_points):
+        raise UserError(f'{path}: visible must have shape (F, P) = ({n_frames}, {n_points}); '
+                        f'got {visible.shape}')
+    return np.flatnonzero(visible.all(axis=0))

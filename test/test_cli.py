@@ -1,0 +1,101 @@
+"""``grass-nrsfm reconstruct IN.npz -o OUT.npz`` and ``grass-nrsfm evaluate OUT.npz GT.npz``:
+real solves of a small synthetic sequence, their figures checked against ground truth, and the
+clear one-line errors (exit code 2) on bad input."""
+import json
+import re
+
+import numpy as np
+import pytest
+
+from grass_nrsfm_ros.cli import main
+from grass_nrsfm_ros.nrsfm.metrics import e3d
+from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
+from grass_nrsfm_ros.nrsfm.synthetic import make_sequence
+
+F, P = 24, 300
+
+
+@pytest.fixture(scope='module')
+def sequence():
+    return make_sequence('inflating', n_frames=F, n_points=P, camera='orbit', seed=1)
+
+
+def printed_e3d(text):
+    return float(re.search(r'e3D \(per-frame Procrustes, no scale\): ([0-9.]+)', text).group(1))
+
+
+def test_reconstruct_then_evaluate(sequence, tmp_path, capsys):
+    sequence.save_npz(tmp_path / 'in.npz')
+    assert main(['reconstruct', str(tmp_path / 'in.npz'), '-o', str(tmp_path / 'out.npz'),
+                 '--quiet']) == 0
+    solved = printed_e3d(capsys.readouterr().out)
+    with np.load(tmp_path / 'out.npz') as out:
+        assert out['S'].shape == (3 * F, P) and out['R'].shape == (F, 3, 3)
+        assert out['translation'].shape == (2 * F, 1) and out['groups'].shape == (P,)
+        assert 'points' not in out.files
+        report = json.loads(str(out['report']))
+        S = out['S']
+    assert report['iterations'] > 0 and report['reprojection_relative'] < 0.05
+    assert solved == pytest.approx(e3d(S, sequence.S), abs=1e-4)
+    rigid = e3d(rigid_factorisation(sequence.W)[1], sequence.S)
+    assert solved < 0.4 * rigid, (solved, rigid)              # measured 0.014 vs 0.074
+    assert main(['evaluate', str(tmp_path / 'out.npz'), str(tmp_path / 'in.npz')]) == 0
+    text = capsys.readouterr().out
+    assert printed_e3d(text) == pytest.approx(solved, abs=1e-4)
+    assert 'Akhter' in text
+
+
+def test_incomplete_tracks_refused_unless_asked(sequence, tmp_path, capsys):
+    visible = np.ones((F, P), bool)
+    visible[5:9, :40] = False                                 # 40 tracks lost for 4 frames
+    W = sequence.W.copy()
+    W.reshape(F, 2, P)[~visible[:, None, :].repeat(2, 1)] = np.nan
+    np.savez(tmp_path / 'in.npz', W=W, S=sequence.S, visible=visible)
+    args = ['reconstruct', str(tmp_path / 'in.npz'), '-o', str(tmp_path / 'out.npz'), '--quiet']
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert '160 of 7200 entries' in err and '40 of 300 tracks' in err
+    assert '--complete-tracks' in err and not (tmp_path / 'out.npz').exists()
+
+    assert main(args + ['--complete-tracks']) == 0
+    text = capsys.readouterr().out
+    assert 'keeping the 260 of 300 tracks' in text
+    with np.load(tmp_path / 'out.npz') as out:
+        assert out['S'].shape == (3 * F, 260)
+        np.testing.assert_array_equal(out['points'], np.arange(40, P))
+        S = out['S']
+    assert printed_e3d(text) == pytest.approx(e3d(S, sequence.S[:, 40:]), abs=1e-4)
+    assert main(['evaluate', str(tmp_path / 'out.npz'), str(tmp_path / 'in.npz')]) == 0
+    assert printed_e3d(capsys.readouterr().out) == pytest.approx(printed_e3d(text), abs=1e-4)
+
+
+@pytest.mark.parametrize('arrays, message', [
+    ({'S': np.zeros((6, 5))}, 'has no array W'),
+    ({'W': np.full((6, 5), np.nan)}, 'non-finite'),
+    ({'W': np.zeros((5, 8))}, 'even number of rows'),
+    ({'W': np.zeros((2, 8))}, 'W has 1 frames; at least 3 needed'),
+    ({'W': np.array([['a'] * 8] * 6)}, 'must be numeric'),
+    ({'W': np.random.default_rng(0).random((8, 10)), 'S': np.zeros((12, 9))},
+     'ground truth S has 9 points; expected 10'),
+    ({'W': np.random.default_rng(0).random((8, 10)), 'visible': np.ones((3, 10), bool) & False},
+     'visible must have shape'),
+])
+def test_reconstruct_bad_input_is_one_clear_line(tmp_path, capsys, arrays, message):
+    np.savez(tmp_path / 'bad.npz', **arrays)
+    assert main(['reconstruct', str(tmp_path / 'bad.npz'), '-o', str(tmp_path / 'o.npz'),
+                 '--quiet', '--complete-tracks']) == 2
+    err = capsys.readouterr().err
+    assert err.startswith('grass-nrsfm reconstruct: error: ') and message in err, err
+    assert err.count('\n') == 1 and not (tmp_path / 'o.npz').exists()
+
+
+def test_evaluate_refuses_mismatched_shapes(tmp_path, capsys):
+    np.savez(tmp_path / 'a.npz', S=np.zeros((6, 5)))
+    np.savez(tmp_path / 'b.npz', S=np.zeros((9, 5)))
+    np.savez(tmp_path / 'c.npz', W=np.zeros((4, 5)))
+    assert main(['evaluate', str(tmp_path / 'a.npz'), str(tmp_path / 'b.npz')]) == 2
+    assert 'shapes differ' in capsys.readouterr().err
+    assert main(['evaluate', str(tmp_path / 'a.npz'), str(tmp_path / 'c.npz')]) == 2
+    assert 'has no array S' in capsys.readouterr().err
+    assert main(['evaluate', str(tmp_path / 'a.npz'), str(tmp_path / 'missing.npz')]) == 2
+    assert 'missing.npz' in capsys.readouterr().err
