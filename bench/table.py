@@ -48,7 +48,9 @@ def accuracy_table(doc):
         pub = [by[m]['published']['value'] for m in ('pta', 'bmm')
                if m in by and by[m].get('published')]
         published = ' / '.join(fmt(v) for v in pub) + ' (A)' if pub else '-'
-        lines.append(f'| {seq} | {any_row["F"]} x {any_row["P"]} | ' + ' | '.join(cells)
+        label = f'{seq} (e3D with per-frame scale)' if any_row.get('family') == 'perspective' \
+            else seq
+        lines.append(f'| {label} | {any_row["F"]} x {any_row["P"]} | ' + ' | '.join(cells)
                      + f' | {published} |')
     return lines
 

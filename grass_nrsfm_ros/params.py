@@ -232,7 +232,10 @@ def load_config(path):
     import yaml
 
     with open(path, encoding='utf-8') as f:
-        data = yaml.safe_load(f) or {}
+        try:
+            data = yaml.safe_load(f) or {}
+        except yaml.YAMLError as exc:
+            raise ValueError(f'{path}: not valid YAML ({" ".join(str(exc).split())})') from None
     if not isinstance(data, dict):
         raise ValueError(f'{path}: expected a mapping of parameters, got {type(data).__name__}')
     try:

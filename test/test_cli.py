@@ -99,3 +99,31 @@ def test_evaluate_refuses_mismatched_shapes(tmp_path, capsys):
     assert 'has no array S' in capsys.readouterr().err
     assert main(['evaluate', str(tmp_path / 'a.npz'), str(tmp_path / 'missing.npz')]) == 2
     assert 'missing.npz' in capsys.readouterr().err
+
+
+def test_unreadable_files_and_paths_are_one_clear_line(sequence, tmp_path, capsys):
+    sequence.save_npz(tmp_path / 'in.npz')
+    (tmp_path / 'text.npz').write_text('not an archive\n')
+    np.save(tmp_path / 'single.npy', np.zeros((4, 5)))
+    (tmp_path / 'bad.yaml').write_text(':::: [\n')
+    base = ['reconstruct', str(tmp_path / 'in.npz'), '--quiet', '-o']
+    cases = [
+        (['reconstruct', str(tmp_path / 'text.npz'), '-o', str(tmp_path / 'o.npz')],
+         'text.npz: not a readable .npz archive'),
+        (['evaluate', str(tmp_path / 'single.npy'), str(tmp_path / 'in.npz')],
+         'single.npy: a single .npy array, not an .npz archive'),
+        (base + [str(tmp_path / 'o.npz'), '--config', str(tmp_path / 'bad.yaml')],
+         'bad.yaml: not valid YAML'),
+        (base + [str(tmp_path / 'no' / 'such' / 'o.npz')], 'does not exist or is not writable'),
+    ]
+    for argv, message in cases:
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert message in err and err.count('\n') == 1, err
+
+
+def test_evaluate_refuses_degenerate_ground_truth(tmp_path, capsys):
+    np.savez(tmp_path / 'est.npz', S=np.random.default_rng(0).random((6, 5)))
+    np.savez(tmp_path / 'gt.npz', S=np.zeros((6, 5)))
+    assert main(['evaluate', str(tmp_path / 'est.npz'), str(tmp_path / 'gt.npz')]) == 2
+    assert 'S_gt frame 0 has zero norm' in capsys.readouterr().err

@@ -1,8 +1,27 @@
 """Reading the commands' ``.npz`` files (the layout of ``../shared/data``: ``W: (2F, P)``,
 optional ground truth ``S: (3F, P)`` (or ``S_gt``), optional ``visible: (F, P)`` bool)."""
+import contextlib
+import zipfile
+
 import numpy as np
 
 from grass_nrsfm_ros.cli import UserError
+
+
+@contextlib.contextmanager
+def opened(path):
+    """``np.load(path)`` of an .npz archive, or UserError naming the file."""
+    try:
+        npz = np.load(path, allow_pickle=False)
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
+        if isinstance(exc, FileNotFoundError):
+            raise
+        raise UserError(f'{path}: not a readable .npz archive ({exc.__class__.__name__})') \
+            from None
+    if not isinstance(npz, np.lib.npyio.NpzFile):
+        raise UserError(f'{path}: a single .npy array, not an .npz archive of named arrays')
+    with npz:
+        yield npz
 
 
 def load_tracks(path):
@@ -10,7 +29,7 @@ def load_tracks(path):
 
     Only the presence of ``W`` is checked here; shapes and values are the solver's to check.
     """
-    with np.load(path, allow_pickle=False) as npz:
+    with opened(path) as npz:
         if 'W' not in npz:
             raise UserError(f'{path} has no array W (has {sorted(npz.files)})')
         S = next((npz[k] for k in ('S_gt', 'S') if k in npz), None)
@@ -24,7 +43,7 @@ def load_tracks(path):
 def load_shapes(path):
     """``(S: (3F, P) float64, points: (P,) or None)`` from an .npz (``S``, else ``S_gt``), or
     UserError; ``points``: the input tracks' columns that S reconstructs (None: all)."""
-    with np.load(path, allow_pickle=False) as npz:
+    with opened(path) as npz:
         key = next((k for k in ('S', 'S_gt') if k in npz), None)
         if key is None:
             raise UserError(f'{path} has no array S (has {sorted(npz.files)})')

@@ -82,11 +82,22 @@ def observed_tracks(path, complete_only):
     return W[:, points], None if S_gt is None else S_gt[:, points], points
 
 
+def check_writable(path):
+    """UserError unless ``path``'s folder exists and may be written to."""
+    import os
+
+    folder = Path(path).resolve().parent
+    if not folder.is_dir() or not os.access(folder, os.W_OK):
+        raise UserError(f'cannot write {path}: folder {folder} does not exist or is not '
+                        'writable')
+
+
 def reconstruct_npz(args):
     from grass_nrsfm_ros.nrsfm import e3d
 
     W, S_gt, points = observed_tracks(args.input, args.complete_tracks)
     solver, _ = solver_from_config(args.config)
+    check_writable(args.output)                          # before a long solve, not after it
     progress = Progress(not args.quiet)
     try:
         result = solver.fit(W, progress=progress)

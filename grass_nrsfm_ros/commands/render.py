@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from grass_nrsfm_ros.cli import UserError
+from grass_nrsfm_ros.commands.npz import opened
 
 
 def add_arguments(parser):
@@ -30,7 +31,7 @@ def add_arguments(parser):
 
 def frames_from_npz(path, key):
     """``[(frame index, ids, xyz: (3, P))]`` from ``S: (3F, P)`` under ``key``, or None."""
-    with np.load(path, allow_pickle=False) as npz:
+    with opened(path) as npz:
         if key not in npz:
             return None
         S = np.asarray(npz[key], np.float64)

@@ -11,7 +11,7 @@ Both take ``S: (3F, P)`` in camera coordinates.
 """
 import numpy as np
 
-from .measurement import as_frames, from_frames, validate_shapes
+from .measurement import as_frames, from_frames, InvalidInputError, validate_shapes
 
 
 def _nearest_orthogonal(M, reflection):
@@ -57,8 +57,11 @@ def e3d(S_est, S_gt, *, scale=False, reflection=True, centre=True, per_frame=Fal
     aligned, gt = procrustes_align(S_est, S_gt, scale=scale, reflection=reflection,
                                    centre=centre)
     diff = as_frames(aligned - gt, 3)
-    gt = as_frames(gt, 3)
-    err = np.linalg.norm(diff, axis=(1, 2)) / np.linalg.norm(gt, axis=(1, 2))
+    norms = np.linalg.norm(as_frames(gt, 3), axis=(1, 2))
+    if not (norms > 0).all():
+        raise InvalidInputError(f'S_gt frame {int(np.argmin(norms))} has zero norm (a single '
+                                'point once centred): e3D is undefined')
+    err = np.linalg.norm(diff, axis=(1, 2)) / norms
     return err if per_frame else float(err.mean())
 
 
@@ -79,6 +82,9 @@ def e3d_akhter(S_est, S_gt):
     Y = Y - Y.mean(axis=2, keepdims=True)
     Q = _nearest_orthogonal(np.einsum('fip,fjp->ij', Y, X), reflection=True)
     s = from_frames(Y).std(axis=1).mean()
+    if not s > 0:
+        raise InvalidInputError('S_gt does not move or extend (zero row deviation): Akhter '
+                                "et al.'s error is undefined")
     dist = np.linalg.norm(Q @ X - Y, axis=1)          # (F, P)
     return float(dist.mean() / s)
 
