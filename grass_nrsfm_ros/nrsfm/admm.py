@@ -354,6 +354,7 @@ class SolverReport:
     warm_started_frames: int = 0
     rotation_method: str = None                  # 'dai', 'rigid' or 'given' (init.R, all known)
     rotation_checked: bool = False               # the 'auto' check chose rotation_method
+    inextensible: bool = False                   # inextensible depths replaced the solver's
     fallback: str = None
     notes: list = field(default_factory=list)    # automatic decisions worth knowing
 
@@ -409,12 +410,22 @@ def _positive(name, value, allow_zero=False):
 BLAS_THREADS = 1
 
 ROTATION_CHOICES = ('auto', 'dai', 'rigid')
+INEXTENSIBLE_CHOICES = ('auto', 'always', 'never')
+#: inextensible='auto' applies to tracks this dense (the spatial branch's own threshold: two
+#: groups of 20 (N_s + 1)); sparse markers (mocap) are no surface mesh
+INEXTENSIBLE_MIN_POINTS = 240
+#: ... and keeps the inextensible depths when they leave at most this share of the solver's
+#: edge-length variation (measured: 0.05-0.5 on bending / twisting / hinged sheets, 0.75-0.92
+#: on dense faces with orbit or shaky head motion, 0.75-0.83 on the inflating surface)
+INEXTENSIBLE_RATIO = 0.6
+#: tracks the 'auto' decision is made on (the 99 x 28,880 face: 0.5 s instead of 7 s)
+INEXTENSIBLE_CHECK_POINTS = 2000
 #: rotations='auto' takes the rigid factorisation's rotations only when their shapes' S#
 #: nuclear norm is this much (relatively) below that with Dai's rotations
 ROTATION_MARGIN = 0.05
 #: points (a fixed random subset) and solver settings of that check
 ROTATION_CHECK_POINTS = 500
-ROTATION_CHECK_PARAMS = {'spatial': False, 'temporal': False}
+ROTATION_CHECK_PARAMS = {'spatial': False, 'temporal': False, 'inextensible': 'never'}
 
 
 def _blas_threads(n):
@@ -482,6 +493,13 @@ class GrassmannNRSfM:
                            'depths towards its best rigid motion up to a per-frame scale; '
                            'fades as w min(1, 1/beta); 0 = off (the paper); cold solves only',
                            'float in [0, 1]'),
+        'inextensible': ("after a cold solve, each frame's depths made inextensible (edge "
+                         "lengths from the longest image lengths; inextensible.py): 'auto' "
+                         f'on dense tracks (P >= {INEXTENSIBLE_MIN_POINTS}) when that cuts the '
+                         'variation of the 3D edge lengths below '
+                         f"{INEXTENSIBLE_RATIO:g} of the solver's (the surface bends without "
+                         "stretching), 'always', or 'never' (the paper)",
+                         "'auto', 'always' or 'never'"),
         'power_steps': ('warm-started power iterations per ADMM iteration for spatial bases',
                         'int >= 1'),
         'delta': ('Omega safeguard: adds delta * trace(Omega)/K * I', 'float >= 0'),
@@ -500,8 +518,8 @@ class GrassmannNRSfM:
                  lambda4=0.1, K_rot='auto', rotations='auto', K_s='auto', K_t='auto',
                  N_s='auto', N_t='auto',
                  sigma_eps=4.0, affinity_min=0.5, regroup_every=10, zeta_weight=1.0,
-                 local_rigidity=0.0, power_steps=1, delta=1e-8, rho=1.2, beta0=1e-3,
-                 beta_max=1e6,
+                 local_rigidity=0.0, inextensible='auto', power_steps=1, delta=1e-8, rho=1.2,
+                 beta0=1e-3, beta_max=1e6,
                  warm_beta0=0.01, eps=1e-12, max_iter=500, spatial=True, temporal=True,
                  random_state=0):
         self.gamma = gamma
@@ -521,6 +539,7 @@ class GrassmannNRSfM:
         self.regroup_every = regroup_every
         self.zeta_weight = zeta_weight
         self.local_rigidity = local_rigidity
+        self.inextensible = inextensible
         self.power_steps = power_steps
         self.delta = delta
         self.rho = rho
@@ -583,6 +602,10 @@ class GrassmannNRSfM:
             raise InvalidInputError(f'rotations must be one of {ROTATION_CHOICES}; got '
                                     f'{self.rotations!r}')
         p['rotations'] = self.rotations
+        if self.inextensible not in INEXTENSIBLE_CHOICES:
+            raise InvalidInputError(f'inextensible must be one of {INEXTENSIBLE_CHOICES}; got '
+                                    f'{self.inextensible!r}')
+        p['inextensible'] = self.inextensible
         for name in ('spatial', 'temporal'):
             value = getattr(self, name)
             if not isinstance(value, (bool, np.bool_)):
@@ -684,11 +707,48 @@ class GrassmannNRSfM:
         S_cam = np.matmul(R, state.S_world_original_order())
         S_cam *= scale
         S_cam = from_frames(S_cam)
-        timer.add('shape', t)
+        t = timer.add('shape', t)
+        if self._wants_inextensible(p['inextensible'], P, init):
+            S_cam = self._inextensible(S_cam, W, p['inextensible'], report, p['random_state'])
+            timer.add('inextensible', t)
         report.seconds = dict(timer.seconds, total=time.perf_counter() - t_start)
         return NRSfMResult(S=S_cam, R=R, translation=translation,
                            groups=state.labels_original_order(), blocks=state.t_edges.copy(),
                            report=report, C_s=state.C_s.copy(), C_t=state.C_t.copy())
+
+    @staticmethod
+    def _wants_inextensible(mode, P, init):
+        """Whether the refinement runs: cold solves (no initial shapes; a warm-started window
+        keeps its carried depths), dense tracks unless 'always'."""
+        if mode == 'never' or init.S is not None:
+            return False
+        return mode == 'always' or P >= INEXTENSIBLE_MIN_POINTS
+
+    @staticmethod
+    def _inextensible(S, W, mode, report, random_state):
+        """``S: (3F, P)`` with inextensible depths (inextensible.refine_depth) when ``mode`` is
+        'always' or they cut the edge-length variation below INEXTENSIBLE_RATIO of the
+        solver's, judged on at most INEXTENSIBLE_CHECK_POINTS tracks (a fixed random subset;
+        the ratio moved by <= 0.03 between 500 and 4,000 points); the decision goes to the
+        report's notes."""
+        from .inextensible import neighbour_edges, refine_depth
+        P = W.shape[1]
+        check = np.arange(P)
+        if mode == 'auto' and P > INEXTENSIBLE_CHECK_POINTS:
+            rng = np.random.default_rng(random_state)
+            check = np.sort(rng.choice(P, INEXTENSIBLE_CHECK_POINTS, replace=False))
+        refined, info = refine_depth(S[:, check], neighbour_edges(W[:, check]))
+        before, after = info['length_variation_before'], info['length_variation_after']
+        ratio = after / before if before > 0 else 1.0
+        used = mode == 'always' or ratio < INEXTENSIBLE_RATIO
+        report.inextensible = used
+        report.notes.append(
+            f"inextensible depths {'used' if used else 'not used'} ({mode}): edge-length "
+            f'variation {before:.4f} -> {after:.4f} on {check.size} tracks (ratio {ratio:.2f}, '
+            f'threshold {INEXTENSIBLE_RATIO:g})')
+        if not used:
+            return S
+        return refined if check.size == P else refine_depth(S, neighbour_edges(W))[0]
 
     @staticmethod
     def _check_init(init, F, P):

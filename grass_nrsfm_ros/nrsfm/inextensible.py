@@ -1,0 +1,132 @@
+"""Inextensible depth refinement (not in the paper; ``GrassmannNRSfM(inextensible=True)``).
+
+A surface that bends without stretching (paper, cloth, a hinged panel) keeps the length
+``l_e`` of every short edge ``e = (i, j)`` between neighbouring points. An orthographic camera
+shows the edge foreshortened, ``|dxy_e^f| = l_e cos(theta_e^f)``, so the longest image length
+over the sequence bounds ``l_e`` and equals it where the edge is fronto-parallel in some
+frame (the maximum-depth heuristic, here without a template: ``l_e`` is a high quantile of the
+image lengths, robust to noise). Each frame's depth differences then follow from the data:
+``|z_i - z_j| = sqrt(l_e^2 - |dxy_e^f|^2)``. Only their signs are unknown; they come from the
+solver's depths, then from the refined depths (a few sweeps). Each frame's depths are the
+least-squares integration of these differences over the neighbour graph (one sparse
+``P x P`` Laplacian factor for all frames), weakly anchored to the solver's depths. ``x, y``
+stay the data's.
+
+Measured (60 x 500 synthetic, seeds 0-2, orbit / wobble / shaky cameras; e3D default ->
+refined; see the README): isometric kinds gain a lot (articulated orbit seed 2 0.130 -> 0.018,
+rigid 0.119; twisting shaky 0.097-0.119 -> 0.035-0.047; bending shaky seed 2 0.175 -> 0.112,
+rigid 0.134), stretching ones lose (inflating orbit 0.023 -> 0.100; dense faces 99 x 2,000
+0.045 -> 0.118: expressions stretch the skin), the waving cloth of the generator (which
+stretches as it waves) changes little (0.21-0.25 -> 0.18-0.24). No data-only rule separated
+the two families reliably (the drop of the edge-length variation, ``length_variation``, is
+0.5-0.7 on the isometric kinds and 0.9-1.0 on inflating and most faces, but 0.74 on one face
+and 0.74-0.91 on noisy isometric sequences), so the refinement is an option, off by default.
+
+Shapes: ``S: (3F, P)`` camera frame, ``W: (2F, P)``; edges ``i, j: (E,)``. Memory stays
+O(F P + F E) in frame chunks; nothing is P x P but the sparse Laplacian.
+"""
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.linalg import splu
+from sklearn.neighbors import NearestNeighbors
+
+from .measurement import as_frames, centre, from_frames
+
+#: neighbours per point in the edge graph
+NEIGHBOURS = 8
+#: dimensions of the trajectory embedding the neighbours are found in
+EMBED_DIMS = 8
+#: the edge length is this quantile of its image lengths over the frames
+LENGTH_QUANTILE = 0.95
+#: depth re-integrations with the signs of the previous one
+SIGN_SWEEPS = 3
+#: weight tying each frame's depths to the solver's (relative to the unit edge weights)
+ANCHOR = 1e-3
+#: entries per (frames x edges) chunk
+CHUNK = 1 << 22
+
+
+def neighbour_edges(W, k=NEIGHBOURS):
+    """Edges ``(i, j): (E,)`` (``i < j``, unique) joining each track of ``W: (2F, P)`` to its
+    ``k`` nearest in a ``EMBED_DIMS``-dimensional embedding of the centred trajectories (their
+    leading principal components, through the ``2F x 2F`` Gram matrix)."""
+    Wc = centre(W)[0]
+    vals, vecs = np.linalg.eigh(Wc @ Wc.T)
+    top = vecs[:, ::-1][:, :min(EMBED_DIMS, Wc.shape[0])]
+    X = Wc.T @ top                                           # (P, d)
+    k = min(k, X.shape[0] - 1)
+    _, idx = NearestNeighbors(n_neighbors=k + 1).fit(X).kneighbors(X)
+    pairs = np.stack([np.repeat(np.arange(X.shape[0]), k), idx[:, 1:].ravel()], axis=1)
+    pairs = np.unique(np.sort(pairs, axis=1), axis=0)
+    pairs = pairs[pairs[:, 0] != pairs[:, 1]]
+    return pairs[:, 0], pairs[:, 1]
+
+
+def _frame_chunks(F, E):
+    step = max(1, CHUNK // max(E, 1))
+    return [slice(a, min(a + step, F)) for a in range(0, F, step)]
+
+
+def _image_lengths(S, i, j, frames):
+    """``|dxy|: (F', E)`` of the frames ``frames`` of ``S: (F, 3, P)``."""
+    return np.hypot(S[frames, 0, i] - S[frames, 0, j], S[frames, 1, i] - S[frames, 1, j])
+
+
+def edge_lengths(S, i, j, quantile=LENGTH_QUANTILE):
+    """Inextensible length estimate ``(E,)`` from ``S: (F, 3, P)``: the larger of the
+    ``quantile`` of each edge's image lengths over the frames and the median of its 3D lengths
+    (the solver's depths: an edge that never faces the camera is longer than any of its
+    images)."""
+    F = S.shape[0]
+    step = max(1, CHUNK // F)
+    out = np.empty(i.size)
+    for a in range(0, i.size, step):
+        e = slice(a, a + step)
+        image = np.quantile(_image_lengths(S, i[e], j[e], slice(None)), quantile, axis=0)
+        solid = np.median(np.linalg.norm(S[:, :, i[e]] - S[:, :, j[e]], axis=1), axis=0)
+        out[e] = np.maximum(image, solid)
+    return out
+
+
+def length_variation(S, i, j):
+    """Mean over edges of the temporal std / mean of the 3D edge lengths of ``S: (3F, P)``."""
+    X = as_frames(S, 3)
+    step = max(1, CHUNK // X.shape[0])
+    ratios = []
+    for a in range(0, i.size, step):
+        L = np.linalg.norm(X[:, :, i[a:a + step]] - X[:, :, j[a:a + step]], axis=1)
+        ratios.append(L.std(axis=0) / np.maximum(L.mean(axis=0), 1e-300))
+    return float(np.concatenate(ratios).mean()) if ratios else 0.0
+
+
+def refine_depth(S, edges, *, quantile=LENGTH_QUANTILE, sweeps=SIGN_SWEEPS, anchor=ANCHOR):
+    """``S: (3F, P)`` camera frame with each frame's depths replaced by the inextensible ones
+    over ``edges = (i, j)`` (see the module docstring); x, y and each frame's mean depth kept.
+    Returns ``(S_refined: (3F, P), info)``, info with the length variation before and after."""
+    i, j = (np.asarray(e, dtype=np.intp) for e in edges)
+    X = as_frames(np.asarray(S, dtype=np.float64), 3)
+    F, _, P = X.shape
+    mean_depth = X[:, 2, :].mean(axis=1, keepdims=True)
+    z0 = X[:, 2, :] - mean_depth                              # (F, P)
+    length = edge_lengths(X, i, j, quantile)
+    E = i.size
+    rows = np.arange(E)
+    incidence = sp.csr_matrix((np.r_[np.ones(E), -np.ones(E)], (np.r_[rows, rows], np.r_[i, j])),
+                              shape=(E, P))
+    solve = splu((incidence.T @ incidence + anchor * sp.eye(P)).tocsc()).solve
+    z = z0
+    for _ in range(sweeps + 1):
+        rhs = anchor * z0.T                                   # (P, F)
+        for frames in _frame_chunks(F, E):
+            dl = _image_lengths(X, i, j, frames)
+            target = np.sqrt(np.maximum(length ** 2 - dl ** 2, 0.0))
+            target *= np.where(z[frames][:, i] >= z[frames][:, j], 1.0, -1.0)
+            rhs[:, frames] += incidence.T @ target.T
+        z = solve(rhs).T
+        z -= z.mean(axis=1, keepdims=True)
+    out = X.copy()
+    out[:, 2, :] = z + mean_depth
+    refined = from_frames(out)
+    info = {'edges': int(E), 'length_variation_before': length_variation(S, i, j),
+            'length_variation_after': length_variation(refined, i, j)}
+    return refined, info
