@@ -64,7 +64,9 @@ per-frame e3D (metrics.e3d). See the report in the branch history for the tables
   sliding window, started from the newest overlapping frame's depth) stay stuck near it
   (pickup window, new frames e3D 0.109 at 1.0, 0.086 at 0.1, 0.021 at 0.01 = the cold solve's
   0.021; iterations 55 / 90 / 80 vs 91 cold; streaming pickup 0.19 -> 0.063).
-* Output: the S iterate of the last iteration (with beta = beta_max it equals S# to ~1e-6).
+* Output: the S iterate of the last iteration (with beta = beta_max it equals S# to ~1e-6),
+  then (not in the paper) the inextensible depth refinement when 'auto' finds the surface
+  bends without stretching (see KEPT below and inextensible.py).
 * Divergence: if the objective or a gap turns non-finite, the initial shapes are returned and
   the report says so.
 
@@ -263,6 +265,32 @@ Tried and NOT adopted (no general gain):
   (rigid 10-20 % higher); faces, shark and Torresani face are within 0.3 % (Dai's kept: face 0
   would lose, 0.046 -> 0.072); the closest call, articulated wobble 2 (rigid 4.7 % lower), keeps
   Dai's, rightly (0.133 vs 0.157). Cost: two solves of at most 500 points (~0.5 s on mocap).
+* KEPT: the inextensible depth refinement, ``inextensible='auto'`` (inextensible.py; cold
+  solves, P >= 240). Why: a rank constraint cannot tell an out-of-plane wave seen obliquely
+  from an in-plane one, and the minimum nuclear norm flattens depth (see the waving diagnosis
+  below), while for a surface that does not stretch the images carry the depth magnitudes:
+  an edge's longest image is its length, and |dz| = sqrt(l^2 - |dxy|^2) in every frame. Signs
+  come from the solver. 'auto' keeps the refined depths when they cut the variation of the 3D
+  edge lengths below INEXTENSIBLE_RATIO = 0.6 of the solver's, judged on 2,000 tracks.
+  Same 54 cases as below (6 mocap, 5 kinds x orbit/wobble/shaky x seeds 0-2 at 60 x 500,
+  faces 99 x 2000 seeds 0-2), against inextensible='never': geometric mean of the e3D ratios
+  0.70, better (> 2 %) on 27, worse on 3 (bending orbit 0 0.1547 -> 0.1589, bending wobble 2
+  0.148 -> 0.161, twisting wobble 1 0.161 -> 0.190), worse than rigid 9 -> 6 (waving orbit /
+  shaky only: 0.23-0.24 vs 0.17). Examples: articulated orbit / shaky seed 2 0.130 / 0.141 ->
+  0.019 / 0.024 (rigid 0.119 / 0.118), bending shaky 2 0.175 -> 0.112 (rigid 0.134), bending
+  orbit 1 0.135 -> 0.057, twisting shaky 0.097-0.119 -> 0.034-0.042. Used on all isometric
+  kinds (ratios 0.05-0.5), on waving (0.45-0.5; its cloth stretches as it waves, so the
+  lengths are only approximate) and inflating wobble (0.50-0.55, better there); not on
+  inflating orbit / shaky (0.75-0.83), mocap (sparse) or the faces (0.68-0.92): those stay
+  bit-identical. Under noise r = 0.03 the isometric ratios rise to 0.63-0.81 and 'auto'
+  mostly declines (the refinement would still help: twisting 0.14 -> 0.08); noisy faces 0.75-
+  0.90. 'always' on the faces costs accuracy (0.045 -> 0.088 on face 0: expressions stretch
+  the skin, and steep edges never face the camera). Variants: lengths from the image only
+  (no solver median): faces 0.045 -> 0.112 and a sign cascade on twisting shaky 0 (0.236);
+  signs from the rigid shape instead of the solver's: waving 0.19-0.20 but twisting 0.5-0.8,
+  and the edge-length variation does not tell which to trust. Cost: 0.04 s at 60 x 500, the
+  decision 0.35 s on the 99 x 28,880 face (which declines), 7 s when a 28,880-track surface
+  uses it.
 Diagnosis of the remaining failures (branch accuracy3; 60 x 2000, GT rotations unless said).
   Waving is (near) unidentifiable for a low-rank shape prior, not a solver or metric bug: the
   metric is right (negated GT depth scores 0.0: reflection allowed), GT S# has rank 7 (singular

@@ -1,29 +1,27 @@
-"""Inextensible depth refinement (not in the paper; ``GrassmannNRSfM(inextensible=True)``).
+"""Inextensible depth refinement (not in the paper; ``GrassmannNRSfM(inextensible=...)``).
 
 A surface that bends without stretching (paper, cloth, a hinged panel) keeps the length
 ``l_e`` of every short edge ``e = (i, j)`` between neighbouring points. An orthographic camera
 shows the edge foreshortened, ``|dxy_e^f| = l_e cos(theta_e^f)``, so the longest image length
-over the sequence bounds ``l_e`` and equals it where the edge is fronto-parallel in some
-frame (the maximum-depth heuristic, here without a template: ``l_e`` is a high quantile of the
-image lengths, robust to noise). Each frame's depth differences then follow from the data:
+over the sequence bounds ``l_e`` and equals it where the edge faces the camera in some frame
+(the maximum-depth heuristic, here without a template; a high quantile rather than the
+maximum, for noise). An edge that never faces the camera (a steep flank) is longer than all
+its images; there the solver's own 3D length (its median over the frames) is the larger and
+is taken. Each frame's depth differences then follow from the data:
 ``|z_i - z_j| = sqrt(l_e^2 - |dxy_e^f|^2)``. Only their signs are unknown; they come from the
 solver's depths, then from the refined depths (a few sweeps). Each frame's depths are the
 least-squares integration of these differences over the neighbour graph (one sparse
 ``P x P`` Laplacian factor for all frames), weakly anchored to the solver's depths. ``x, y``
 stay the data's.
 
-Measured (60 x 500 synthetic, seeds 0-2, orbit / wobble / shaky cameras; e3D default ->
-refined; see the README): isometric kinds gain a lot (articulated orbit seed 2 0.130 -> 0.018,
-rigid 0.119; twisting shaky 0.097-0.119 -> 0.035-0.047; bending shaky seed 2 0.175 -> 0.112,
-rigid 0.134), stretching ones lose (inflating orbit 0.023 -> 0.100; dense faces 99 x 2,000
-0.045 -> 0.118: expressions stretch the skin), the waving cloth of the generator (which
-stretches as it waves) changes little (0.21-0.25 -> 0.18-0.24). No data-only rule separated
-the two families reliably (the drop of the edge-length variation, ``length_variation``, is
-0.5-0.7 on the isometric kinds and 0.9-1.0 on inflating and most faces, but 0.74 on one face
-and 0.74-0.91 on noisy isometric sequences), so the refinement is an option, off by default.
+Whether a sequence's surface is inextensible is judged by what the refinement achieves:
+``length_variation`` (temporal std over mean of the 3D edge lengths) drops to 0.05-0.5 of the
+solver's on bending, twisting and hinged sheets, but only to 0.75-0.92 on the dense faces and
+the inflating surface, whose stretching no depth can undo. The solver's ``'auto'`` mode uses
+that ratio (admm.py, with the measurements).
 
 Shapes: ``S: (3F, P)`` camera frame, ``W: (2F, P)``; edges ``i, j: (E,)``. Memory stays
-O(F P + F E) in frame chunks; nothing is P x P but the sparse Laplacian.
+O(F P + F E) in frame / edge chunks; nothing is P x P but the sparse Laplacian.
 """
 import numpy as np
 import scipy.sparse as sp
