@@ -443,7 +443,7 @@ INEXTENSIBLE_CHOICES = ('auto', 'always', 'never')
 #: groups of 20 (N_s + 1)); sparse markers (mocap) are no surface mesh
 INEXTENSIBLE_MIN_POINTS = 240
 #: ... and keeps the inextensible depths when they leave at most this share of the solver's
-#: edge-length variation (measured: 0.05-0.5 on bending / twisting / hinged sheets, 0.75-0.92
+#: edge-length variation (measured: 0.05-0.5 on bending / twisting / hinged sheets, 0.68-0.92
 #: on dense faces with orbit or shaky head motion, 0.75-0.83 on the inflating surface)
 INEXTENSIBLE_RATIO = 0.6
 #: tracks the 'auto' decision is made on (the 99 x 28,880 face: 0.5 s instead of 7 s)

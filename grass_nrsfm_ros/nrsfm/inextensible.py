@@ -16,7 +16,7 @@ stay the data's.
 
 Whether a sequence's surface is inextensible is judged by what the refinement achieves:
 ``length_variation`` (temporal std over mean of the 3D edge lengths) drops to 0.05-0.5 of the
-solver's on bending, twisting and hinged sheets, but only to 0.75-0.92 on the dense faces and
+solver's on bending, twisting and hinged sheets, but only to 0.68-0.92 on the dense faces and
 the inflating surface, whose stretching no depth can undo. The solver's ``'auto'`` mode uses
 that ratio (admm.py, with the measurements).
 
