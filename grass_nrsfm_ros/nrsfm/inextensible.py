@@ -28,7 +28,8 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 from sklearn.neighbors import NearestNeighbors
 
-from .measurement import as_frames, centre, from_frames
+from .measurement import as_frames, from_frames
+from .rotation import _normalised_svd
 
 #: neighbours per point in the edge graph
 NEIGHBOURS = 8
@@ -47,12 +48,11 @@ CHUNK = 1 << 20
 
 def neighbour_edges(W, k=NEIGHBOURS):
     """Edges ``(i, j): (E,)`` (``i < j``, unique) joining each track of ``W: (2F, P)`` to its
-    ``k`` nearest in a ``EMBED_DIMS``-dimensional embedding of the centred trajectories (their
-    leading principal components, through the ``2F x 2F`` Gram matrix)."""
-    Wc = centre(W)[0]
-    vals, vecs = np.linalg.eigh(Wc @ Wc.T)
-    top = vecs[:, ::-1][:, :min(EMBED_DIMS, Wc.shape[0])]
-    X = Wc.T @ top                                           # (P, d)
+    ``k`` nearest in a ``EMBED_DIMS``-dimensional embedding of the trajectories (their leading
+    principal components, from the rotation step's SVD of the centred tracks)."""
+    _, d, Vt, _, _ = _normalised_svd(W)
+    n = min(EMBED_DIMS, d.size)
+    X = (d[:n, None] * Vt[:n]).T                             # (P, n)
     k = min(k, X.shape[0] - 1)
     _, idx = NearestNeighbors(n_neighbors=k + 1).fit(X).kneighbors(X)
     pairs = np.stack([np.repeat(np.arange(X.shape[0]), k), idx[:, 1:].ravel()], axis=1)
@@ -71,31 +71,35 @@ def _image_lengths(S, i, j, frames):
     return np.hypot(S[frames, 0, i] - S[frames, 0, j], S[frames, 1, i] - S[frames, 1, j])
 
 
-def edge_lengths(S, i, j, quantile=LENGTH_QUANTILE):
-    """Inextensible length estimate ``(E,)`` from ``S: (F, 3, P)``: the larger of the
-    ``quantile`` of each edge's image lengths over the frames and the median of its 3D lengths
-    (the solver's depths: an edge that never faces the camera is longer than any of its
-    images)."""
-    F = S.shape[0]
-    step = max(1, CHUNK // F)
+def _edge_chunks(F, E):
+    step = max(1, CHUNK // max(F, 1))
+    return [slice(a, a + step) for a in range(0, E, step)]
+
+
+def _image_length_quantile(X, i, j, quantile):
+    """``(E,)``: the ``quantile`` of each edge's image lengths over the frames of ``X: (F, 3,
+    P)``."""
     out = np.empty(i.size)
-    for a in range(0, i.size, step):
-        e = slice(a, a + step)
-        image = np.quantile(_image_lengths(S, i[e], j[e], slice(None)), quantile, axis=0)
-        solid = np.median(np.linalg.norm(S[:, :, i[e]] - S[:, :, j[e]], axis=1), axis=0)
-        out[e] = np.maximum(image, solid)
+    for e in _edge_chunks(X.shape[0], i.size):
+        out[e] = np.quantile(_image_lengths(X, i[e], j[e], slice(None)), quantile, axis=0)
     return out
+
+
+def _length_stats(X, i, j):
+    """Per edge, over the frames of ``X: (F, 3, P)``: the median of its 3D length and the
+    temporal std over the mean of it, both ``(E,)``."""
+    median, relative_std = np.empty(i.size), np.empty(i.size)
+    for e in _edge_chunks(X.shape[0], i.size):
+        L = np.linalg.norm(X[:, :, i[e]] - X[:, :, j[e]], axis=1)
+        median[e] = np.median(L, axis=0)
+        relative_std[e] = L.std(axis=0) / np.maximum(L.mean(axis=0), 1e-300)
+    return median, relative_std
 
 
 def length_variation(S, i, j):
     """Mean over edges of the temporal std / mean of the 3D edge lengths of ``S: (3F, P)``."""
-    X = as_frames(S, 3)
-    step = max(1, CHUNK // X.shape[0])
-    ratios = []
-    for a in range(0, i.size, step):
-        L = np.linalg.norm(X[:, :, i[a:a + step]] - X[:, :, j[a:a + step]], axis=1)
-        ratios.append(L.std(axis=0) / np.maximum(L.mean(axis=0), 1e-300))
-    return float(np.concatenate(ratios).mean()) if ratios else 0.0
+    i, j = np.asarray(i, dtype=np.intp), np.asarray(j, dtype=np.intp)
+    return float(_length_stats(as_frames(S, 3), i, j)[1].mean()) if i.size else 0.0
 
 
 def refine_depth(S, edges, *, quantile=LENGTH_QUANTILE, sweeps=SIGN_SWEEPS, anchor=ANCHOR):
@@ -107,7 +111,10 @@ def refine_depth(S, edges, *, quantile=LENGTH_QUANTILE, sweeps=SIGN_SWEEPS, anch
     F, _, P = X.shape
     mean_depth = X[:, 2, :].mean(axis=1, keepdims=True)
     z0 = X[:, 2, :] - mean_depth                              # (F, P)
-    length = edge_lengths(X, i, j, quantile)
+    # inextensible length: the larger of the image-length quantile and the median of the
+    # solver's 3D length (an edge that never faces the camera is longer than all its images)
+    solid, relative_std = _length_stats(X, i, j)
+    length = np.maximum(_image_length_quantile(X, i, j, quantile), solid)
     E = i.size
     rows = np.arange(E)
     incidence = sp.csr_matrix((np.r_[np.ones(E), -np.ones(E)], (np.r_[rows, rows], np.r_[i, j])),
@@ -126,6 +133,7 @@ def refine_depth(S, edges, *, quantile=LENGTH_QUANTILE, sweeps=SIGN_SWEEPS, anch
     out = X.copy()
     out[:, 2, :] = z + mean_depth
     refined = from_frames(out)
-    info = {'edges': int(E), 'length_variation_before': length_variation(S, i, j),
+    info = {'edges': int(E),
+            'length_variation_before': float(relative_std.mean()) if E else 0.0,
             'length_variation_after': length_variation(refined, i, j)}
     return refined, info
