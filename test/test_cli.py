@@ -127,3 +127,24 @@ def test_evaluate_refuses_degenerate_ground_truth(tmp_path, capsys):
     np.savez(tmp_path / 'gt.npz', S=np.zeros((6, 5)))
     assert main(['evaluate', str(tmp_path / 'est.npz'), str(tmp_path / 'gt.npz')]) == 2
     assert 'S_gt frame 0 has zero norm' in capsys.readouterr().err
+
+
+def test_evaluate_prefers_s_gt_in_a_file_holding_both(tmp_path, capsys):
+    """A file with an estimate ``S`` and ground truth ``S_gt`` (the demo's reconstruction) is
+    ground truth through ``S_gt``, an estimate through ``S``."""
+    rng = np.random.default_rng(0)
+    truth, other = rng.random((9, 20)), rng.random((9, 20))
+    np.savez(tmp_path / 'both.npz', S=other, S_gt=truth)
+    np.savez(tmp_path / 'truth.npz', S=truth)
+    assert main(['evaluate', str(tmp_path / 'truth.npz'), str(tmp_path / 'both.npz')]) == 0
+    assert printed_e3d(capsys.readouterr().out) == 0.0
+    assert main(['evaluate', str(tmp_path / 'both.npz'), str(tmp_path / 'truth.npz')]) == 0
+    assert printed_e3d(capsys.readouterr().out) == pytest.approx(e3d(other, truth), abs=1e-4)
+
+
+def test_visible_of_the_wrong_shape_is_refused_even_when_all_true(tmp_path, capsys):
+    np.savez(tmp_path / 'in.npz', W=np.random.default_rng(0).random((8, 10)),
+             visible=np.ones((3, 10), bool))
+    assert main(['reconstruct', str(tmp_path / 'in.npz'), '-o', str(tmp_path / 'o.npz'),
+                 '--quiet']) == 2
+    assert 'visible must have shape' in capsys.readouterr().err

@@ -4,7 +4,7 @@ When OUT reconstructs only some of the input's tracks (``points``, written by ``
 --complete-tracks``), the ground truth's matching columns are compared.
 """
 from grass_nrsfm_ros.cli import UserError
-from grass_nrsfm_ros.commands.npz import load_shapes
+from grass_nrsfm_ros.commands.npz import GROUND_TRUTH_KEYS, load_shapes
 from grass_nrsfm_ros.nrsfm.metrics import e3d, e3d_akhter
 
 
@@ -27,7 +27,8 @@ def matched_ground_truth(S_gt, points, n_points):
 
 
 def run(args):
-    (S_est, points), (S_gt, _) = load_shapes(args.estimate), load_shapes(args.ground_truth)
+    S_est, points = load_shapes(args.estimate)
+    S_gt, _ = load_shapes(args.ground_truth, GROUND_TRUTH_KEYS)
     S_gt = matched_ground_truth(S_gt, points, S_est.shape[1])
     if S_est.shape != S_gt.shape:
         raise UserError(f'shapes differ: estimate {S_est.shape}, ground truth {S_gt.shape}')

@@ -13,9 +13,9 @@ def opened(path):
     """``np.load(path)`` of an .npz archive, or UserError naming the file."""
     try:
         npz = np.load(path, allow_pickle=False)
+    except FileNotFoundError:
+        raise
     except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
-        if isinstance(exc, FileNotFoundError):
-            raise
         raise UserError(f'{path}: not a readable .npz archive ({exc.__class__.__name__})') \
             from None
     if not isinstance(npz, np.lib.npyio.NpzFile):
@@ -32,7 +32,7 @@ def load_tracks(path):
     with opened(path) as npz:
         if 'W' not in npz:
             raise UserError(f'{path} has no array W (has {sorted(npz.files)})')
-        S = next((npz[k] for k in ('S_gt', 'S') if k in npz), None)
+        S = next((npz[k] for k in GROUND_TRUTH_KEYS if k in npz), None)
         visible = np.asarray(npz['visible'], bool) if 'visible' in npz else None
         W = np.asarray(npz['W'])
     if W.dtype.kind not in 'fiu':
@@ -40,11 +40,17 @@ def load_tracks(path):
     return W.astype(np.float64), None if S is None else np.asarray(S, np.float64), visible
 
 
-def load_shapes(path):
-    """``(S: (3F, P) float64, points: (P,) or None)`` from an .npz (``S``, else ``S_gt``), or
-    UserError; ``points``: the input tracks' columns that S reconstructs (None: all)."""
+#: the shapes an .npz holds, in order of preference: an estimate's (``reconstruct`` writes
+#: ``S``) and ground truth (``S_gt`` where a file holds both, like the demo's reconstruction)
+ESTIMATE_KEYS, GROUND_TRUTH_KEYS = ('S',), ('S_gt', 'S')
+
+
+def load_shapes(path, keys=ESTIMATE_KEYS):
+    """``(S: (3F, P) float64, points: (P,) or None)`` from an .npz (the first of ``keys`` it
+    holds), or UserError; ``points``: the input tracks' columns that S reconstructs (None:
+    all)."""
     with opened(path) as npz:
-        key = next((k for k in ('S', 'S_gt') if k in npz), None)
+        key = next((k for k in keys if k in npz), None)
         if key is None:
             raise UserError(f'{path} has no array S (has {sorted(npz.files)})')
         points = np.asarray(npz['points']) if 'points' in npz else None

@@ -69,9 +69,11 @@ def observed_tracks(path, complete_only):
     F, P = W.shape[0] // 2, W.shape[1]
     if S_gt is not None:                 # checked before a long solve, not after it
         S_gt = validate_shapes(S_gt, n_frames=F, n_points=P, name=f'{path}: ground truth S')
-    if visible is None or visible.all():
+    if visible is None:
         return W, S_gt, None
     points = complete_tracks(visible, F, P, path)
+    if points.size == P:
+        return W, S_gt, None
     if not complete_only:
         raise UserError(
             f'{path}: visible marks {int((~visible).sum())} of {visible.size} entries as '
