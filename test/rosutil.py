@@ -20,6 +20,10 @@ from rclpy.executors import SingleThreadedExecutor
 from sensor_msgs.msg import PointCloud2
 
 TEST_DIR = Path(__file__).resolve().parent
+#: the feeder's ``points`` history: the node's default window_size, as the README advises a
+#: subscriber that needs every frame (with depth 10, a window's burst overwrote 3 of 105 clouds
+#: in this Python subscriber's history while both cores were busy)
+POINTS_DEPTH = 30
 RIGID_LAUNCH = ('import sys; from test_pipeline import RigidALS, RigidWarmStart; '
                 'from grass_nrsfm_ros.node import main; '
                 'sys.exit(main(solver_factory=RigidALS, warm_start_class=RigidWarmStart))')
@@ -36,7 +40,8 @@ class Feeder:
         self.pub = self.node.create_publisher(PointCloud2, 'tracks', 10)
         self.points, self.diagnostics = [], []
         self.points_sub = self.node.create_subscription(
-            PointCloud2, 'points', self.points.append if keep_points else self._count_point, 10)
+            PointCloud2, 'points', self.points.append if keep_points else self._count_point,
+            POINTS_DEPTH)
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 10)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)

@@ -9,11 +9,15 @@ publishes rosgraph_msgs/Clock on /clock (the bag time, at each message and ``--c
 between) for nodes with ``use_sim_time``. Ctrl-C stops cleanly.
 """
 import importlib
+import signal
 import time
 
 import numpy as np
 
 from grass_nrsfm_ros.cli import UserError
+
+#: longest sleep between two checks for Ctrl-C while waiting for a message's time
+MAX_SLEEP_S = 0.1
 
 
 def add_arguments(parser):
@@ -92,6 +96,11 @@ class Player:
             from rosgraph_msgs.msg import Clock
             self.clock_pub = node.create_publisher(Clock, '/clock', 10)
         self.published = 0
+        self.stopped = False                  # set by a signal handler (see run)
+
+    def stop(self, signum=None, frame=None):
+        """Signal handler: stop after the message being published."""
+        self.stopped = True
 
     def publish_clock(self, t_ns):
         from rosgraph_msgs.msg import Clock
@@ -105,12 +114,12 @@ class Player:
         ``t_target``, the bag time of the message due then, so /clock does not step back)."""
         import rclpy
 
-        period = 1.0 / self.args.clock_hz if self.clock_pub else None
-        while True:
+        period = 1.0 / self.args.clock_hz if self.clock_pub else MAX_SLEEP_S
+        while not self.stopped:
             now = time.monotonic()
             if now >= target:
                 return
-            step = target - now if period is None else min(period, target - now)
+            step = min(period, target - now)
             if step > 0.002:
                 rclpy.spin_once(self.node, timeout_sec=0)
             time.sleep(max(0.0, min(step, target - time.monotonic())))
@@ -128,6 +137,8 @@ class Player:
                 wall0, t0 = time.monotonic(), t_ns
             target = wall0 + (t_ns - t0) / 1e9 / rate
             self.wait_until(target, lambda now: t0 + (now - wall0) * rate * 1e9, t_ns)
+            if self.stopped:
+                return
             self.pub.publish(to_rclpy(decode(), self.cls) if is_ros1 else bytes(raw))
             if self.clock_pub is not None:
                 self.publish_clock(t_ns)
@@ -137,7 +148,7 @@ class Player:
         import rclpy
 
         deadline = time.monotonic() + timeout
-        while self.pub.get_subscription_count() < n:
+        while self.pub.get_subscription_count() < n and not self.stopped:
             if time.monotonic() > deadline:
                 raise UserError(f'no {n} subscriber(s) on {self.pub.topic_name} after '
                                 f'{timeout:g} s')
@@ -149,23 +160,33 @@ def run(args):
         raise UserError(f'--rate must be positive; got {args.rate}')
     import rclpy
     from rclpy.executors import ExternalShutdownException
+    from rclpy.signals import SignalHandlerOptions
 
-    rclpy.init()
+    # Ctrl-C / SIGTERM only set a flag that the playing loop reads between messages. With
+    # rclpy's own handlers, which shut the context down at once from C, a publish under way
+    # failed ("publisher's context is invalid": a traceback, exit code 1); and a
+    # KeyboardInterrupt raised from our own handler sometimes ended the process with SIGINT
+    # (exit -2) although it was caught.
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     node = rclpy.create_node('grass_nrsfm_replay')
     player = None
     try:
         player = Player(node, args)
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, player.stop)
         if args.wait_for_subscribers > 0:
             player.wait_for_subscribers(args.wait_for_subscribers)
-        while True:
+        while not player.stopped:
             player.play_once()
             if not args.loop:
                 break
         # let reliable messages reach late acknowledgers before the publisher goes away
         deadline = time.monotonic() + 0.5
-        while time.monotonic() < deadline:
+        while time.monotonic() < deadline and not player.stopped:
             rclpy.spin_once(node, timeout_sec=0.05)
-    except (KeyboardInterrupt, ExternalShutdownException):
+        if player.stopped:
+            print('replay: interrupted')
+    except (KeyboardInterrupt, ExternalShutdownException):    # before the handlers are set
         print('replay: interrupted')
     finally:
         if player is not None:
