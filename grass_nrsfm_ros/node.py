@@ -252,9 +252,11 @@ class ReconstructionNode(Node):
             try:
                 self._solve_and_publish(window)
             except Exception:
-                if not self._stopping.is_set():
+                if not self._stopping.is_set() and self.context.ok():
                     raise
-                break                   # the node was torn down under a solve left behind
+                # torn down under a solve left behind, or Ctrl-C shut the context down (from
+                # C, before the executor returns) while this thread was publishing
+                break
             with self._lock:
                 window, self._pending = self._pending, None
                 self._busy = window is not None
