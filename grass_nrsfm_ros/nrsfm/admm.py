@@ -291,6 +291,16 @@ Tried and NOT adopted (no general gain):
   and the edge-length variation does not tell which to trust. Cost: 0.04 s at 60 x 500, the
   decision 0.35 s on the 99 x 28,880 face (which declines), 7 s when a 28,880-track surface
   uses it.
+  REJECTED (session 5): a noise-aware ratio. 132 cases (5 kinds x 3 cameras x seeds 0-1 at
+  60 x 500, faces 99 x 2,000 seeds 0-2, each at r = 0 / 0.01 / 0.03 / 0.05), e3D 'never' vs
+  'always' next to four statistics of the 3D edge lengths: the present std/mean; with a noise
+  floor removed (var minus mean(second difference^2) / 6, white noise); after a 5-frame moving
+  average; median absolute deviation. At r = 0.01 the present rule already takes the cases
+  that gain (twisting, articulated orbit / shaky 0.26-0.48x at ratios 0.35-0.51). At r = 0.03
+  the gains (twisting / articulated orbit and shaky, 0.42-0.64x) sit at floor-removed ratios
+  0.48-0.62, but the refinement harms bending and twisting wobble there (1.13-1.20x at 0.51-0.57),
+  and inflating shaky, 3.5x worse, sits at 0.70-0.71 (0.68 already at r = 0); faces 0.73-0.89.
+  No threshold on any of the four separates gain from harm with a margin; the 0.6 rule stays.
 Diagnosis of the remaining failures (branch accuracy3; 60 x 2000, GT rotations unless said).
   Waving is (near) unidentifiable for a low-rank shape prior, not a solver or metric bug: the
   metric is right (negated GT depth scores 0.0: reflection allowed), GT S# has rank 7 (singular
