@@ -301,6 +301,9 @@ Tried and NOT adopted (no general gain):
   0.48-0.62, but the refinement harms bending and twisting wobble there (1.13-1.20x at 0.51-0.57),
   and inflating shaky, 3.5x worse, sits at 0.70-0.71 (0.68 already at r = 0); faces 0.73-0.89.
   No threshold on any of the four separates gain from harm with a margin; the 0.6 rule stays.
+  Nor did lengths and signs from x, y denoised by a rank-3K (or 3K + 3) truncation of W help:
+  e3D worse on every case (twisting orbit r = 0.03 0.079 -> 0.089 / 0.107, articulated orbit
+  0.039 -> 0.057 / 0.090) and the ratios higher (0.64 -> 0.68 / 0.70).
 Diagnosis of the remaining failures (branch accuracy3; 60 x 2000, GT rotations unless said).
   Waving is (near) unidentifiable for a low-rank shape prior, not a solver or metric bug: the
   metric is right (negated GT depth scores 0.0: reflection allowed), GT S# has rank 7 (singular
