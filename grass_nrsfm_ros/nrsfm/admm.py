@@ -254,17 +254,28 @@ Tried and NOT adopted (no general gain):
   -> 0.19 (still > rigid 0.17), face 2 0.052 -> 0.042, shark 0.089 -> 0.072, but mocap collapses
   (pickup 0.016 -> 0.145, yoga 0.016 -> 0.280, drink 0.007 -> 0.063) and twisting/articulated
   regress: geometric mean 1.23x, worse on 31.
-* KEPT: the rotation check, ``rotations='auto'`` (cold solves). Dai et al. pick rotations that
-  make S# low rank; the check applies that criterion between Dai's rotations and the rigid
-  factorisation's: a plain nuclear-norm solve (both branches off) on at most 500 points with
-  each, the rigid ones taken when their world S# nuclear norm is at least 5 % lower
-  (ROTATION_MARGIN). Mocap (drink aside), 45 synthetic cases (60 x 500) and faces 99 x 2000
-  seeds 0-2: rigid chosen on 6, all bending (orbit seeds 0/1/2, wobble 1/2, shaky 1; norm
-  8-47 % lower): orbit seed 1 0.1807 -> 0.1350 (rigid 0.1460), orbit 2 0.1994 -> 0.1214,
-  shaky 1 0.1709 -> 0.1387; no case worse; worse-than-rigid cases 12 -> 9. Mocap keeps Dai's
-  (rigid 10-20 % higher); faces, shark and Torresani face are within 0.3 % (Dai's kept: face 0
-  would lose, 0.046 -> 0.072); the closest call, articulated wobble 2 (rigid 4.7 % lower), keeps
+* KEPT: the rotation check, ``rotations='auto'`` (cold solves). Dai et al. pick rotations that make
+  S# low rank; the check applies that criterion between Dai's rotations and the rigid
+  factorisation's: a plain nuclear-norm solve (both branches off) on at most 500 points with each,
+  the rigid ones taken when their world S# nuclear norm is at least 10 % lower (ROTATION_MARGIN;
+  5 % until session 5, see below). With 5 %, on mocap (drink aside), 45 synthetic cases (60 x 500)
+  and faces 99 x 2000 seeds 0-2: rigid chosen on 6, all bending (orbit seeds 0/1/2, wobble 1/2,
+  shaky 1; norm 8-47 % lower): orbit seed 1 0.1807 -> 0.1350 (rigid 0.1460), orbit 2 0.1994 ->
+  0.1214, shaky 1 0.1709 -> 0.1387; no case worse; worse-than-rigid cases 12 -> 9. Mocap keeps
+  Dai's (rigid 10-20 % higher); faces, shark and Torresani face are within 0.3 % (Dai's kept: face
+  0 would lose, 0.046 -> 0.072); the closest call, articulated wobble 2 (rigid 4.7 % lower), keeps
   Dai's, rightly (0.133 vs 0.157). Cost: two solves of at most 500 points (~0.5 s on mocap).
+  Margin 5 % -> 10 % (session 5), validated on seeds never used before: 45 synthetic cases
+  at seeds 3-5 and faces seeds 3-5, with the inextensible depths on. With 5 % the check lost
+  there to always-Dai (geometric mean e3D 0.1134 vs 0.1124; rigid chosen 8 times, wrongly 5
+  times). Every measured case with a margin in [5 %, 10 %) (seeds 0-5, faces 0-5, mocap,
+  perspective subsets): twisting shaky 3 (5.2 %) 0.125 -> 0.053, articulated wobble 3 (5.4 %)
+  0.159 -> 0.088, articulated shaky 3 (9.5 %) 0.096 -> 0.089, bending wobble 3 (9.8 %) 0.165 ->
+  0.150, but bending wobble 2 (7.5 %) 0.161 -> 0.165 and face 3 (8.1 %) 0.078 -> 0.082. At
+  10 % the seeds 3-5 geometric mean is 0.1094. Nothing else moves: mocap, shark, Torresani
+  face, tshirt10 and the noisy faces are at -21 % to +1.9 %; kinect_paper10 (11.3 %) keeps
+  the rigid rotations. Still wrong at any margin: bending orbit 0 (36 % lower, Dai's would
+  give 0.102 vs 0.159 once the inextensible depths run).
 * KEPT: the inextensible depth refinement, ``inextensible='auto'`` (inextensible.py; cold
   solves, P >= 240). Why: a rank constraint cannot tell an out-of-plane wave seen obliquely
   from an in-plane one, and the minimum nuclear norm flattens depth (see the waving diagnosis
@@ -463,7 +474,7 @@ INEXTENSIBLE_RATIO = 0.6
 INEXTENSIBLE_CHECK_POINTS = 2000
 #: rotations='auto' takes the rigid factorisation's rotations only when their shapes' S#
 #: nuclear norm is this much (relatively) below that with Dai's rotations
-ROTATION_MARGIN = 0.05
+ROTATION_MARGIN = 0.10
 #: points (a fixed random subset) and solver settings of that check
 ROTATION_CHECK_POINTS = 500
 ROTATION_CHECK_PARAMS = {'spatial': False, 'temporal': False, 'inextensible': 'never'}
