@@ -20,10 +20,10 @@ from rclpy.executors import SingleThreadedExecutor
 from sensor_msgs.msg import PointCloud2
 
 TEST_DIR = Path(__file__).resolve().parent
-#: the feeder's ``points`` history: the node's default window_size, as the README advises a
-#: subscriber that needs every frame (with depth 10, a window's burst overwrote 3 of 105 clouds
-#: in this Python subscriber's history while both cores were busy)
-POINTS_DEPTH = 30
+#: the feeder's ``points`` history by default (test_node, which needs every cloud, asks for
+#: the node's window_size, 30, as the README advises: with 10, a window's burst overwrote 3 of
+#: 105 clouds in this Python subscriber's history while both cores were busy)
+POINTS_DEPTH = 10
 RIGID_LAUNCH = ('import sys; from test_pipeline import RigidALS, RigidWarmStart; '
                 'from grass_nrsfm_ros.node import main; '
                 'sys.exit(main(solver_factory=RigidALS, warm_start_class=RigidWarmStart))')
@@ -32,7 +32,7 @@ RIGID_LAUNCH = ('import sys; from test_pipeline import RigidALS, RigidWarmStart;
 class Feeder:
     """This process's side: publishes ``tracks``, collects ``points`` and ``/diagnostics``."""
 
-    def __init__(self, namespace, keep_points=True):
+    def __init__(self, namespace, keep_points=True, points_depth=POINTS_DEPTH):
         self.points_received = 0                    # counted even when not kept (load runs)
         self.context = rclpy.Context()
         rclpy.init(context=self.context)
@@ -41,7 +41,7 @@ class Feeder:
         self.points, self.diagnostics = [], []
         self.points_sub = self.node.create_subscription(
             PointCloud2, 'points', self.points.append if keep_points else self._count_point,
-            POINTS_DEPTH)
+            points_depth)
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 10)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
@@ -133,7 +133,8 @@ def stop(proc, sig=signal.SIGINT, timeout=15):
 
 @contextmanager
 def node_with_feeder(env, log, args=(), *, launch=RIGID_LAUNCH,
-                     preexec_fn=None, connect_timeout=30, keep_points=True):
+                     preexec_fn=None, connect_timeout=30, keep_points=True,
+                     points_depth=POINTS_DEPTH):
     """Start the node (``launch``: Python code run with ``-c`` from test/, extra ROS ``args``)
     in a fresh namespace, its output in ``log``; yield ``(process, feeder)`` once they are
     connected; stop it with SIGINT at the end."""
@@ -147,7 +148,7 @@ def node_with_feeder(env, log, args=(), *, launch=RIGID_LAUNCH,
         proc = subprocess.Popen(
             [sys.executable, '-c', launch, '--ros-args', '-r', f'__ns:={namespace}', *args],
             cwd=TEST_DIR, env=env, stdout=out, stderr=subprocess.STDOUT, preexec_fn=preexec_fn)
-    feeder = Feeder(namespace, keep_points=keep_points)
+    feeder = Feeder(namespace, keep_points=keep_points, points_depth=points_depth)
     try:
         assert feeder.wait_for(feeder.connected, connect_timeout), Path(log).read_text()
         yield proc, feeder

@@ -34,7 +34,9 @@ def node_process(ros_env, tmp_path, request):
     log = tmp_path / 'node.log'
     args = getattr(request, 'param', ())
     extra = [a.format(tmp=tmp_path) for a in args]
-    with node_with_feeder(ros_env, log, ['-p', 'frame_id:=cam_optical', *extra]) as (proc, feeder):
+    # every cloud is checked: a subscriber history of window_size, as the README advises
+    with node_with_feeder(ros_env, log, ['-p', 'frame_id:=cam_optical', *extra],
+                          points_depth=30) as (proc, feeder):
         yield proc, log, feeder
 
 
