@@ -159,7 +159,6 @@ def run(args):
     if args.rate <= 0:
         raise UserError(f'--rate must be positive; got {args.rate}')
     import rclpy
-    from rclpy.executors import ExternalShutdownException
     from rclpy.signals import SignalHandlerOptions
 
     # Ctrl-C / SIGTERM only set a flag that the playing loop reads between messages. With
@@ -186,7 +185,7 @@ def run(args):
             rclpy.spin_once(node, timeout_sec=0.05)
         if player.stopped:
             print('replay: interrupted')
-    except (KeyboardInterrupt, ExternalShutdownException):    # before the handlers are set
+    except KeyboardInterrupt:            # Ctrl-C before the handlers are set (no rclpy ones)
         print('replay: interrupted')
     finally:
         if player is not None:
