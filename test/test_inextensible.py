@@ -43,6 +43,35 @@ def test_depth_magnitudes_come_from_the_image_lengths():
     assert info['length_variation_after'] < 0.3 * info['length_variation_before']
 
 
+def test_sign_rounds_follow_the_rest_of_the_sequence():
+    """Ground-truth depths with every 4th frame replaced by sign-less noise: the sweeps keep
+    the noise's signs there; with the rotations, the rounds take them from the other frames
+    (measured 0.199 -> 0.051 on those frames; a block of 10 consecutive such frames is beyond
+    them: 0.04 -> 0.04)."""
+    seq = make_sequence('bending', n_frames=40, n_points=600, camera='orbit', seed=1)
+    X = as_frames(seq.S, 3).copy()
+    bad = np.arange(2, 40, 4)
+    X[bad, 2] = np.random.default_rng(0).normal(0.0, 1e-3, (bad.size, X.shape[2]))
+    start, edges = from_frames(X), neighbour_edges(seq.W)
+    sweeps_only, _ = refine_depth(start, edges)
+    rounds, _ = refine_depth(start, edges, R=seq.R)
+    before = e3d(sweeps_only, seq.S, per_frame=True)[bad].mean()
+    after = e3d(rounds, seq.S, per_frame=True)[bad].mean()
+    assert after < 0.3 * before, (before, after)
+    np.testing.assert_array_equal(as_frames(rounds, 3)[:, :2], X[:, :2])
+
+
+def test_sign_rounds_improve_a_real_solve():
+    """Articulated shaky, seed 2: the solver's own rotations and depths, refined with the
+    sweeps alone and with the rounds (measured 0.0238 vs 0.0082; rigid 0.1178)."""
+    seq = make_sequence('articulated', n_frames=60, n_points=500, camera='shaky', seed=2)
+    paper = GrassmannNRSfM(inextensible='never').fit(seq.W)
+    edges = neighbour_edges(seq.W)
+    sweeps_only = e3d(refine_depth(paper.S, edges)[0], seq.S)
+    rounds = e3d(refine_depth(paper.S, edges, R=paper.R)[0], seq.S)
+    assert rounds < 0.0082 * 1.15 and rounds < 0.5 * sweeps_only, (rounds, sweeps_only)
+
+
 def test_length_variation_is_zero_for_a_rigid_motion():
     seq = make_sequence('articulated', n_frames=10, n_points=200, seed=0)
     X = np.repeat(as_frames(seq.S, 3)[:1], 10, axis=0)      # frame 0's shape, every frame
@@ -61,7 +90,7 @@ def test_auto_uses_it_on_a_hinged_surface():
     assert res.report.inextensible and 'inextensible' in res.report.seconds
     assert any(n.startswith('inextensible depths used (auto)') for n in res.report.notes)
     assert paper > rigid                                      # measured 0.1409 vs 0.1178
-    assert ours < 0.3 * rigid, (ours, paper, rigid)           # measured 0.0238
+    assert ours < 0.1 * rigid, (ours, paper, rigid)           # measured 0.0082
 
 
 def test_auto_keeps_the_solver_depths_of_a_stretching_surface():
@@ -99,7 +128,7 @@ def test_no_p_by_p_allocation():
     edges = neighbour_edges(seq.W)
     tracemalloc.start()
     try:
-        refined, _ = refine_depth(seq.S, edges)
+        refined, _ = refine_depth(seq.S, edges, R=seq.R)
         peak = tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()
