@@ -44,8 +44,7 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 from sklearn.neighbors import NearestNeighbors
 
-from .grassmann import top_subspace
-from .measurement import as_frames, from_frames, to_camera, to_world
+from .measurement import as_frames, from_frames
 from .rotation import _normalised_svd
 
 #: neighbours per point in the edge graph
@@ -123,17 +122,35 @@ def length_variation(S, i, j):
     return float(_length_stats(as_frames(S, 3), i, j)[1].mean()) if i.size else 0.0
 
 
+def _point_chunks(F, P):
+    step = max(1, CHUNK // (3 * max(F, 1)))
+    return [slice(a, a + step) for a in range(0, P, step)]
+
+
 def low_rank_depths(X, R, rank=SIGN_RANK):
     """Camera-frame depths ``(F, P)`` of the shapes ``X: (F, 3, P)`` after projecting their
     world S# (``(F, 3P)``, through ``R: (F, 3, 3)``) onto its mean plus its top ``rank``
-    components."""
+    components. Two passes over point chunks (an ``F x F`` Gram, then the projection), so
+    nothing ``(F, 3P)``-sized is held."""
     F, _, P = X.shape
-    world = to_world(R, from_frames(X)).reshape(F, 3 * P)
-    mean = world.mean(axis=0)
-    world -= mean
-    basis, _ = top_subspace(world, rank)                  # (F, rank)
-    world = basis @ (basis.T @ world) + mean
-    return as_frames(to_camera(R, world.reshape(3 * F, P)), 3)[:, 2, :]
+    Rt = R.transpose(0, 2, 1)
+
+    def centred_world(points):
+        Y = Rt @ X[:, :, points]                              # (F, 3, p)
+        mean = Y.mean(axis=0)
+        return (Y - mean).reshape(F, -1), mean
+
+    gram = np.zeros((F, F))
+    for points in _point_chunks(F, P):
+        Y, _ = centred_world(points)
+        gram += Y @ Y.T
+    basis = np.linalg.eigh(gram)[1][:, ::-1][:, :rank]       # (F, rank)
+    z = np.empty((F, P))
+    for points in _point_chunks(F, P):
+        Y, mean = centred_world(points)
+        world = (basis @ (basis.T @ Y)).reshape(F, 3, -1) + mean
+        z[:, points] = np.einsum('fk,fkp->fp', R[:, 2, :], world)
+    return z
 
 
 def refine_depth(S, edges, *, R=None, quantile=LENGTH_QUANTILE, sweeps=SIGN_SWEEPS,
