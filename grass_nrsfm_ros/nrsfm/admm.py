@@ -327,6 +327,15 @@ Tried and NOT adopted (no general gain):
   shaky 3). The cases worse than rigid stay the same 6 / 8 (waving orbit / shaky and, at
   seeds 3-5, the three named below). Mocap (sparse) and the faces (declined) are untouched.
   Cost at 60 x 30,000: refinement 3.5 -> 6.3 s CPU (solve 26 s without it).
+  NOT adopted (session 6): choosing the rotations on the refined results instead of the plain
+  check. Both full solves (rotations 'dai' and 'rigid', refinement on) on 48 cases per seed set
+  (5 kinds x 3 cameras at 60 x 500, faces 99 x 2,000 orbit), geometric mean e3D seeds 0-2 /
+  3-5: the check 0.0714 / 0.0988, always Dai 0.0753 / 0.1007, oracle 0.0666 / 0.0926. Rigid
+  when the refined shapes' edge-length variation is lower: 0.0704 / 0.0968; the check, but Dai
+  when the rigid result's rank-2 world residual is > 1.5x Dai's: 0.0706 / 0.0974 (bending orbit
+  0 0.156 -> 0.087, bending shaky 5 0.102 -> 0.047, but bending shaky 4 0.089 -> 0.100). No
+  ratio of the S# nuclear norm, the rank-2 / rank-3 residual or the reprojection error did
+  better. 1-2 % for a second full solve per sequence: not worth it.
 Diagnosis of the remaining failures (branch accuracy3; 60 x 2000, GT rotations unless said).
   Waving is (near) unidentifiable for a low-rank shape prior, not a solver or metric bug: the
   metric is right (negated GT depth scores 0.0: reflection allowed), GT S# has rank 7 (singular
