@@ -327,6 +327,11 @@ Tried and NOT adopted (no general gain):
   shaky 3). The cases worse than rigid stay the same 6 / 8 (waving orbit / shaky and, at
   seeds 3-5, the three named below). Mocap (sparse) and the faces (declined) are untouched.
   Cost at 60 x 30,000: refinement 3.5 -> 6.3 s CPU (solve 26 s without it).
+  The decision stays on the sweeps alone: the ratio after the rounds is lower everywhere and
+  separates no better (seed 0, r = 0.03: gains at 0.54-0.62 (twisting / articulated orbit,
+  shaky), harm at 0.56-0.58 (twisting / bending wobble, 0.185 -> 0.221, 0.149 -> 0.178)), and
+  it brings the clean face 1 nearer the threshold (0.679 -> 0.638; refined there 0.080 ->
+  0.085).
   NOT adopted (session 6): choosing the rotations on the refined results instead of the plain
   check. Both full solves (rotations 'dai' and 'rigid', refinement on) on 48 cases per seed set
   (5 kinds x 3 cameras at 60 x 500, faces 99 x 2,000 orbit), geometric mean e3D seeds 0-2 /
