@@ -120,6 +120,8 @@ def test_solver_option_is_validated():
     seq = make_sequence('bending', n_frames=10, n_points=50, seed=0)
     with pytest.raises(InvalidInputError, match='inextensible must be one of'):
         GrassmannNRSfM(inextensible=True).fit(seq.W)
+    with pytest.raises(InvalidInputError, match='R has 9 frames; expected 10'):
+        refine_depth(seq.S, neighbour_edges(seq.W), R=seq.R[:-1])
 
 
 def test_no_p_by_p_allocation():

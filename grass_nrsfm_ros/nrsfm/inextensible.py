@@ -23,7 +23,7 @@ magnitudes stay the data's. Measured on the 36 synthetic cases (5 kinds x orbit 
 shaky x seeds 0-2, 60 x 500) where 'auto' refines, against the sweeps alone: geometric mean of
 the e3D ratios 0.85 (rank 2), 0.91 (rank 3), 0.85 (rank 1, but worse on 5), 0.86 (rank =
 K_rot); 2 rounds without the extra sweep 0.88, 6 rounds with 3 sweeps 0.84 (at 3x the cost).
-Examples: articulated shaky 2 0.024 -> 0.008, twisting orbit 0 0.087 -> 0.057, bending shaky
+Examples: articulated shaky 2 0.024 -> 0.008, twisting orbit 0 0.087 -> 0.061, bending shaky
 0 0.101 -> 0.067; worse (by 3-5 %) twisting wobble 1 / 2. The rounds do not fix the waving
 cloth (0.23 -> 0.22-0.24): started from the ground-truth depths they drift to 0.14 with the
 solver's rotations, and from the rigid shape's depths they reach 0.17-0.19, but the
@@ -44,7 +44,7 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 from sklearn.neighbors import NearestNeighbors
 
-from .measurement import as_frames, from_frames
+from .measurement import as_frames, from_frames, validate_rotations
 from .rotation import _normalised_svd
 
 #: neighbours per point in the edge graph
@@ -163,6 +163,8 @@ def refine_depth(S, edges, *, R=None, quantile=LENGTH_QUANTILE, sweeps=SIGN_SWEE
     i, j = (np.asarray(e, dtype=np.intp) for e in edges)
     X = as_frames(np.asarray(S, dtype=np.float64), 3)
     F, _, P = X.shape
+    if R is not None:
+        R = validate_rotations(R, F)
     mean_depth = X[:, 2, :].mean(axis=1, keepdims=True)
     z0 = X[:, 2, :] - mean_depth                              # (F, P)
     # inextensible length: the larger of the image-length quantile and the median of the
