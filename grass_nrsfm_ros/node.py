@@ -325,7 +325,9 @@ class ReconstructionNode(Node):
                   'frames pending': self.pipeline.pending_frames,
                   'sequences': stats['resets'] + 1,
                   'windows not solved': self._counts['solve_errors'],
-                  'solver busy': self._busy}
+                  'solver busy': self._busy,
+                  'tracks publishers': self.tracks_sub.get_publisher_count(),
+                  'points subscribers': self.points_pub.get_subscription_count()}
         message = 'falling behind: skipping to the newest window' if behind else 'ok'
         level = DiagnosticStatus.WARN if behind else DiagnosticStatus.OK
         if self.recorder is not None and self.recorder.error:
