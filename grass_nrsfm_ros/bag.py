@@ -357,6 +357,7 @@ class Recorder:
                 break
             if self.error is not None:
                 self._count_drop(item)
+                opened_at = None              # nothing left to flush: block on the queue
                 continue
             try:
                 if item is not None:

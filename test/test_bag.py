@@ -231,7 +231,7 @@ def test_unwritable_path_gives_one_error_and_writes_do_not_raise(tmp_path):
 
 
 FULL_DISK_WRITER = textwrap.dedent("""
-    import resource, signal, sys
+    import resource, signal, sys, time
     from grass_nrsfm_ros import bag
     from grass_nrsfm_ros.cloud import tracks_array
     import numpy as np
@@ -243,8 +243,13 @@ FULL_DISK_WRITER = textwrap.dedent("""
     raw = bag.cloud_cdr(tracks_array(np.arange(100), np.zeros((100, 2))), 0, 'c')
     for i in range(200):
         rec.write('/tracks', raw, i)
+    while rec.error is None:
+        time.sleep(0.01)
+    start = time.process_time()
+    time.sleep(2.0)                          # the failed recorder must not spin meanwhile
+    idle_cpu = time.process_time() - start
     rec.close()
-    print(len(errors), rec.written, rec.dropped, repr(rec.error))
+    print(len(errors), rec.written, rec.dropped, idle_cpu, repr(rec.error))
 """)
 
 
@@ -253,8 +258,11 @@ def test_full_disk_gives_one_error_and_the_caller_goes_on(tmp_path):
                          capture_output=True, text=True, cwd=REPO, timeout=60,
                          env={**os.environ, 'PYTHONPATH': str(REPO)})
     assert out.returncode == 0, out.stderr
-    n_errors, written, dropped, error = out.stdout.split(maxsplit=3)
+    n_errors, written, dropped, idle_cpu, error = out.stdout.split(maxsplit=4)
     assert n_errors == '1' and 'File too large' in error and 'recover' in error
+    # the recorder thread busy-looped after a failure (a whole core: 2.0 s of CPU in 2 s),
+    # which starved the node's solves (rigid stand-in 0.1 s -> 7.4 s per window)
+    assert float(idle_cpu) < 0.2, idle_cpu
     assert int(written) + int(dropped) == 200 and int(dropped) > 0
     report = bag.recover(tmp_path / 'full')                      # what reached the disk
     assert 0 < report.messages <= int(written)
