@@ -39,7 +39,8 @@ class Feeder:
         self.node = rclpy.create_node('feeder', namespace=namespace, context=self.context)
         self.pub = self.node.create_publisher(PointCloud2, 'tracks', 10)
         self.pub_created = time.monotonic()
-        self.points, self.diagnostics, self.diagnostics_at = [], [], []
+        self.points, self.diagnostics = [], []
+        self.last_diagnostics_at = float('-inf')
         self.points_sub = self.node.create_subscription(
             PointCloud2, 'points', self.points.append if keep_points else self._count_point,
             points_depth)
@@ -56,7 +57,7 @@ class Feeder:
     def _on_diagnostics(self, msg):
         if any(s.hardware_id == self.node.get_namespace() + '/grass_nrsfm' for s in msg.status):
             self.diagnostics.append(msg)
-            self.diagnostics_at.append(time.monotonic())
+            self.last_diagnostics_at = time.monotonic()
 
     def _spin(self):
         while not self._stop.is_set():
@@ -71,7 +72,7 @@ class Feeder:
     def node_reports(self, since):
         """``{key: value}`` of the newest diagnostics received after ``since`` (monotonic), or
         {}."""
-        if not self.diagnostics_at or self.diagnostics_at[-1] <= since:
+        if self.last_diagnostics_at <= since:
             return {}
         return self.diagnostic_values()
 

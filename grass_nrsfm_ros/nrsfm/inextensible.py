@@ -81,9 +81,11 @@ def neighbour_edges(W, k=NEIGHBOURS):
     return pairs[:, 0], pairs[:, 1]
 
 
-def _frame_chunks(F, E):
-    step = max(1, CHUNK // max(E, 1))
-    return [slice(a, min(a + step, F)) for a in range(0, F, step)]
+def _chunks(n, size):
+    """Slices over ``range(n)`` of at most ``CHUNK // size`` items each, so that an array of
+    ``size`` entries per item stays within CHUNK entries per slice."""
+    step = max(1, CHUNK // max(size, 1))
+    return [slice(a, min(a + step, n)) for a in range(0, n, step)]
 
 
 def _image_lengths(S, i, j, frames):
@@ -91,16 +93,11 @@ def _image_lengths(S, i, j, frames):
     return np.hypot(S[frames, 0, i] - S[frames, 0, j], S[frames, 1, i] - S[frames, 1, j])
 
 
-def _edge_chunks(F, E):
-    step = max(1, CHUNK // max(F, 1))
-    return [slice(a, a + step) for a in range(0, E, step)]
-
-
 def _image_length_quantile(X, i, j, quantile):
     """``(E,)``: the ``quantile`` of each edge's image lengths over the frames of ``X: (F, 3,
     P)``."""
     out = np.empty(i.size)
-    for e in _edge_chunks(X.shape[0], i.size):
+    for e in _chunks(i.size, X.shape[0]):
         out[e] = np.quantile(_image_lengths(X, i[e], j[e], slice(None)), quantile, axis=0)
     return out
 
@@ -109,7 +106,7 @@ def _length_stats(X, i, j):
     """Per edge, over the frames of ``X: (F, 3, P)``: the median of its 3D length and the
     temporal std over the mean of it, both ``(E,)``."""
     median, relative_std = np.empty(i.size), np.empty(i.size)
-    for e in _edge_chunks(X.shape[0], i.size):
+    for e in _chunks(i.size, X.shape[0]):
         L = np.linalg.norm(X[:, :, i[e]] - X[:, :, j[e]], axis=1)
         median[e] = np.median(L, axis=0)
         relative_std[e] = L.std(axis=0) / np.maximum(L.mean(axis=0), 1e-300)
@@ -120,11 +117,6 @@ def length_variation(S, i, j):
     """Mean over edges of the temporal std / mean of the 3D edge lengths of ``S: (3F, P)``."""
     i, j = np.asarray(i, dtype=np.intp), np.asarray(j, dtype=np.intp)
     return float(_length_stats(as_frames(S, 3), i, j)[1].mean()) if i.size else 0.0
-
-
-def _point_chunks(F, P):
-    step = max(1, CHUNK // (3 * max(F, 1)))
-    return [slice(a, a + step) for a in range(0, P, step)]
 
 
 def low_rank_depths(X, R, rank=SIGN_RANK):
@@ -141,12 +133,12 @@ def low_rank_depths(X, R, rank=SIGN_RANK):
         return (Y - mean).reshape(F, -1), mean
 
     gram = np.zeros((F, F))
-    for points in _point_chunks(F, P):
+    for points in _chunks(P, 3 * F):
         Y, _ = centred_world(points)
         gram += Y @ Y.T
     basis = np.linalg.eigh(gram)[1][:, ::-1][:, :rank]       # (F, rank)
     z = np.empty((F, P))
-    for points in _point_chunks(F, P):
+    for points in _chunks(P, 3 * F):
         Y, mean = centred_world(points)
         world = (basis @ (basis.T @ Y)).reshape(F, 3, -1) + mean
         z[:, points] = np.einsum('fk,fkp->fp', R[:, 2, :], world)
@@ -180,7 +172,7 @@ def refine_depth(S, edges, *, R=None, quantile=LENGTH_QUANTILE, sweeps=SIGN_SWEE
     def integrate(signs_from):
         """Depths ``(F, P)`` (zero mean per frame) with the edge signs of ``signs_from``."""
         rhs = anchor * z0.T                                   # (P, F)
-        for frames in _frame_chunks(F, E):
+        for frames in _chunks(F, E):
             dl = _image_lengths(X, i, j, frames)
             target = np.sqrt(np.maximum(length ** 2 - dl ** 2, 0.0))
             target *= np.where(signs_from[frames][:, i] >= signs_from[frames][:, j], 1.0, -1.0)
