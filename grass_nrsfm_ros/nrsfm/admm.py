@@ -341,6 +341,28 @@ Tried and NOT adopted (no general gain):
   0 0.156 -> 0.087, bending shaky 5 0.102 -> 0.047, but bending shaky 4 0.089 -> 0.100). No
   ratio of the S# nuclear norm, the rank-2 / rank-3 residual or the reprojection error did
   better. 1-2 % for a second full solve per sequence: not worth it.
+  NOT adopted (session 7): debiasing the nuclear norm's flattened depths. Keep the temporal
+  basis U (F x r) of the solver's world S#, re-fit the basis shapes to W by least squares
+  (W = M B with M's block row f = [U_f1 Pi R_f .. U_fr Pi R_f], one (2F x 3r) solve for all
+  points). 45 cases (5 kinds x 3 cameras x seeds 0-2, 60 x 500, before the refinement), r = 1
+  .. 7: inflating wobble 0.44-0.46 -> 0.065-0.107 at r = 2 (rigid 0.51-0.62; seed 4, where
+  rigid beats us 0.240 vs 0.428, goes to 0.061), inflating orbit / shaky 0.014-0.040 ->
+  0.005-0.009 at r = 3-4, twisting wobble 0.15-0.22 -> 0.04-0.13 at r = 2, but waving 0.21-
+  0.25 -> 0.19-3.1 (worse at almost every r), bending wobble 1 0.168 -> 0.40-0.70, bending
+  orbit 0 0.155 -> 0.30-0.38. The right r differs by kind, and neither the 5-fold held-out-
+  frame error of W (falls monotonically in r), the edge-length variation, the condition of M
+  nor the ratio of depth to image extent picks it or tells when not to debias.
+  NOT adopted (session 7): choosing K_rot (1..5, or the rigid rotations) after full solves.
+  90 cases (5 kinds x 3 cameras x seeds 0-5, 60 x 500), each solved with every candidate:
+  geometric mean e3D seeds 0-2 / 3-5: present rule 0.0725 / 0.1013, oracle 0.0613 / 0.0814
+  (e.g. twisting wobble K = 2 0.045-0.090 vs K = 3 (chosen) 0.14-0.22, twisting orbit 5 K = 2
+  0.100 vs 0.174, bending orbit 0 K = 3 0.087 vs rigid 0.156). Picks: the lowest S# nuclear
+  norm of the rotation check's solve over all six 0.0974 / 0.1086 (the norm barely moves
+  between K: twisting orbit 5 288 vs 285); that, but only when >= 2 / 5 / 10 % below the
+  present choice's, 0.0914 / 0.0835 / 0.0725 (seeds 0-2); the lowest edge-length variation of
+  the output among the candidates whose refinement 'auto' accepts, 0.0717 / 0.1017 (1 % for 6x
+  the solves). The rotations' own errors do not rank the candidates either (twisting shaky 0:
+  K = 3 is 20.7 degrees off and best, K = 2 18.7 degrees and 2x worse).
 Diagnosis of the remaining failures (branch accuracy3; 60 x 2000, GT rotations unless said).
   Waving is (near) unidentifiable for a low-rank shape prior, not a solver or metric bug: the
   metric is right (negated GT depth scores 0.0: reflection allowed), GT S# has rank 7 (singular
