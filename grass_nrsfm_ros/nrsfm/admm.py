@@ -361,7 +361,9 @@ Tried and NOT adopted (no general gain):
   between K: twisting orbit 5 288 vs 285); that, but only when >= 2 / 5 / 10 % below the
   present choice's, 0.0914 / 0.0835 / 0.0725 (seeds 0-2); the lowest edge-length variation of
   the output among the candidates whose refinement 'auto' accepts, 0.0717 / 0.1017 (1 % for 6x
-  the solves). The rotations' own errors do not rank the candidates either (twisting shaky 0:
+  the solves); the lowest reprojection error of the full solve, taken when 0 / 10 / 20 / 30 %
+  below the present choice's, 0.0792 / 0.0775 / 0.0751 / 0.0758 and 0.1081 / 0.1083 / 0.1071 /
+  0.1041. The rotations' own errors do not rank the candidates either (twisting shaky 0:
   K = 3 is 20.7 degrees off and best, K = 2 18.7 degrees and 2x worse).
 Diagnosis of the remaining failures (branch accuracy3; 60 x 2000, GT rotations unless said).
   Waving is (near) unidentifiable for a low-rank shape prior, not a solver or metric bug: the
