@@ -113,14 +113,16 @@ def test_perspective_subsets_beat_rigid(name):
 # ------------------------------------------------------------------------------ synthetic
 # kind -> measured e3D (orbit, shaky) at 60 frames x 500 points, seed 0; threshold +15%.
 # In brackets: without the inextensible depths (inextensible='never'); 'auto' uses them on all
-# but inflating (a stretching surface) here.
+# but inflating (a stretching surface) here. The registered rotations (register_rotations) are
+# kept on all of those but articulated shaky; before them: bending (0.1561, 0.0671), waving
+# (0.2320, 0.2441), twisting (0.0608, 0.0329), articulated (0.0089, 0.0087).
 SYNTHETIC = {
-    'bending': (0.1561, 0.0671),       # (0.1547, 0.1473); rigid 0.2921, 0.2451 (orbit: rigid
+    'bending': (0.1387, 0.0471),       # (0.1547, 0.1473); rigid 0.2921, 0.2451 (orbit: rigid
                                        # rotations chosen)
-    'waving': (0.2320, 0.2441),        # (0.2507, 0.2445); rigid 0.1711, 0.1724: KNOWN worse
+    'waving': (0.2432, 0.2508),        # (0.2507, 0.2445); rigid 0.1711, 0.1724: KNOWN worse
     'inflating': (0.0234, 0.0140),     # rigid 0.0734, 0.0734 (0.0132 without smoothness)
-    'twisting': (0.0608, 0.0329),      # (0.1498, 0.0974); rigid 0.4348, 0.2250
-    'articulated': (0.0089, 0.0087),   # (0.0755, 0.0758); rigid 0.1013, 0.1016
+    'twisting': (0.0555, 0.0331),      # (0.1498, 0.0974); rigid 0.4348, 0.2250
+    'articulated': (0.0099, 0.0087),   # (0.0755, 0.0758); rigid 0.1013, 0.1016
 }
 SYNTHETIC_WORSE_THAN_RIGID = {'waving'}
 
@@ -132,7 +134,7 @@ def test_rotation_check_takes_rigid_rotations_where_dai_fails():
     result = GrassmannNRSfM().fit(seq.W)
     assert any(n.startswith('rotations: rigid') for n in result.report.notes)
     ours, rigid = e3d(result.S, seq.S), e3d(rigid_factorisation(seq.W)[1], seq.S)
-    assert ours < 0.0468 * 1.15 and ours < rigid          # measured 0.0468, rigid 0.1460
+    assert ours < 0.0269 * 1.15 and ours < rigid          # measured 0.0269, rigid 0.1460
     dai = GrassmannNRSfM(rotations='dai', inextensible='never').fit(seq.W)
     assert e3d(dai.S, seq.S) > rigid                                  # measured 0.1807
     rigid_rotations = GrassmannNRSfM(inextensible='never').fit(seq.W)

@@ -7,7 +7,8 @@ from grass_nrsfm_ros.nrsfm.baselines import bmm
 from grass_nrsfm_ros.nrsfm.measurement import validate_rotations
 from grass_nrsfm_ros.nrsfm.metrics import e3d, rotation_error
 from grass_nrsfm_ros.nrsfm.rotation import (choose_rank, estimate_rotations,
-                                            rigid_factorisation, sign_continuity)
+                                            rigid_factorisation, rotation_spread,
+                                            sign_continuity)
 
 
 def smooth_rotations(F, rng, step_deg=4.0):
@@ -115,6 +116,14 @@ def test_choose_rank_rule():
     # a weak basis shape (12 % drop) counts on a long sequence, not on a short one
     assert choose_rank({1: 0.3, 2: 0.01, 3: 0.0088, 4: 0.0087}, 300)[0] == 3
     assert choose_rank({1: 0.3, 2: 0.01, 3: 0.0088, 4: 0.0087}, 20)[0] == 2
+
+
+def test_rotation_spread_is_the_mean_angle_from_the_mean():
+    angles = np.linspace(-30.0, 30.0, 61)                 # degrees about one axis
+    turns = Rotation.from_rotvec(np.radians(angles)[:, None] * [0.0, 1.0, 0.0]).as_matrix()
+    world = Rotation.from_rotvec([0.3, -1.2, 0.5]).as_matrix()
+    assert rotation_spread(turns @ world) == pytest.approx(np.abs(angles).mean(), abs=1e-6)
+    assert rotation_spread(np.tile(world, (5, 1, 1))) == pytest.approx(0.0, abs=1e-5)
 
 
 def test_sign_continuity_undoes_random_flips():

@@ -332,6 +332,34 @@ Tried and NOT adopted (no general gain):
   shaky), harm at 0.56-0.58 (twisting / bending wobble, 0.185 -> 0.221, 0.149 -> 0.178)), and
   it brings the clean face 1 nearer the threshold (0.679 -> 0.638; refined there 0.080 ->
   0.085).
+  KEPT (session 7): rotations registered to the refined shapes, ``register_rotations='auto'``
+  (solves given no WarmStart whose inextensible depths were kept). The refined camera-frame shapes
+  are full 3D, so the rotations can be re-estimated from them: inextensible.register_rotations
+  aligns each frame (proper Procrustes) to the world S# projected onto its mean + 2 components (the
+  sign rounds' model), 20 alternations from the solver's rotations; the solve is then run again
+  with those rotations, and its result is kept when its inextensible depths are used too and its
+  edge lengths vary less (the 'auto' decision's tracks). Not tried when the solver's rotations
+  spread by <= 5 degrees (rotation.rotation_spread; REGISTRATION_MIN_SPREAD). 90 synthetic cases (5
+  kinds x 3 cameras, 60 x 500), geometric mean e3D: seeds 0-2 (the variant was chosen there) 0.0725
+  -> 0.0695, better (> 3 %) on 9, worse on 4 (waving orbit 0 1.05x, articulated orbit 0 0.0089 ->
+  0.0099, articulated shaky 1 1.06x, bending wobble 0 0.144 -> 0.160); seeds 3-5 (validation)
+  0.1013 -> 0.0955, better on 9, worse on 2 (bending orbit 4 1.05x, bending wobble 3 1.06x).
+  Examples: twisting orbit 5 0.174 -> 0.055 (rigid 0.150: no longer worse than rigid), twisting
+  orbit 4 0.064 -> 0.039, bending orbit 1 / shaky 1 0.047 / 0.062 -> 0.027 / 0.034, bending orbit 0
+  0.156 -> 0.139, articulated wobble 4 0.087 -> 0.063. Tried on 30 / 23 of the 36 / 31 cases that
+  refine, kept on 19 / 19. Variants (same cases, seeds 0-2 / 3-5): mean + 1 component 0.0671 /
+  0.0965 but worse on 3 / 3 and waving orbit 3 newly worse than rigid; no spread condition 0.0700 /
+  0.0959, worse on 4 / 5 (twisting wobble 1.04-1.5x: with a few degrees of camera motion the
+  registration follows the deformation); always keeping the second solve 0.0710 / 0.0971 (rank 2,
+  worse on 11 / 9) and 0.0691 / 0.0995 (rank 1, worse on 12 / 11); a second registration round
+  0.0684 / 0.0946, worse on 3 / 4; 5 / 10 / 40 alternations instead of 20: 0.0718 / 0.0713 / 0.0688
+  and 0.0983 / 0.0979 / 0.0956 (40: waving orbit 3 newly worse than rigid). Re-running only the
+  sign rounds with the registered rotations (no second solve) gains nothing (seeds 0-2: 0.0720 at
+  rank 2, 0.0729 at rank 1). Cost: one more solve where it is tried (60 x 500: +1-1.5 s); mocap
+  (sparse) and the faces (refinement declined) are untouched. Not in the sliding windows (they pass
+  a WarmStart): registering in every window after the first (60 x 1,000, window 30 / stride 10,
+  'model') gave bending 0.192 -> 0.180, articulated 0.0503 -> 0.0503, twisting 0.172 -> 0.175,
+  waving 0.2195 -> 0.2295, for 1.25-1.6x the CPU per window.
   NOT adopted (session 6): choosing the rotations on the refined results instead of the plain
   check. Both full solves (rotations 'dai' and 'rigid', refinement on) on 48 cases per seed set
   (5 kinds x 3 cameras at 60 x 500, faces 99 x 2,000 orbit), geometric mean e3D seeds 0-2 /
@@ -457,6 +485,7 @@ class SolverReport:
     rotation_method: str = None                  # 'dai', 'rigid' or 'given' (init.R, all known)
     rotation_checked: bool = False               # the 'auto' check chose rotation_method
     inextensible: bool = False                   # inextensible depths replaced the solver's
+    rotations_registered: bool = False           # R re-estimated from the refined shapes, kept
     fallback: str = None
     notes: list = field(default_factory=list)    # automatic decisions worth knowing
 
@@ -513,6 +542,11 @@ BLAS_THREADS = 1
 
 ROTATION_CHOICES = ('auto', 'dai', 'rigid')
 INEXTENSIBLE_CHOICES = ('auto', 'always', 'never')
+REGISTRATION_CHOICES = ('auto', 'never')
+#: register_rotations='auto' needs the rotations to spread by more than this (degrees, mean
+#: angle from their mean): with less camera motion the registration follows the deformation
+#: (measured: twisting wobble, 2.6-3.7 degrees, 1.04-1.5x worse without this condition)
+REGISTRATION_MIN_SPREAD = 5.0
 #: inextensible='auto' applies to tracks this dense (the spatial branch's own threshold: two
 #: groups of 20 (N_s + 1)); sparse markers (mocap) are no surface mesh
 INEXTENSIBLE_MIN_POINTS = 240
@@ -602,6 +636,14 @@ class GrassmannNRSfM:
                          f"{INEXTENSIBLE_RATIO:g} of the solver's (the surface bends without "
                          "stretching), 'always', or 'never' (the paper)",
                          "'auto', 'always' or 'never'"),
+        'register_rotations': ('after a solve given no warm start whose inextensible '
+                               'depths were kept: '
+                               "'auto' re-estimates the rotations by registering those shapes "
+                               'to their low-rank world model (inextensible.register_rotations),'
+                               ' solves again with them and keeps that result when its edge '
+                               'lengths vary less, if the rotations spread by more than '
+                               f"{REGISTRATION_MIN_SPREAD:g} degrees; or 'never'",
+                               "'auto' or 'never'"),
         'power_steps': ('warm-started power iterations per ADMM iteration for spatial bases',
                         'int >= 1'),
         'delta': ('Omega safeguard: adds delta * trace(Omega)/K * I', 'float >= 0'),
@@ -620,7 +662,8 @@ class GrassmannNRSfM:
                  lambda4=0.1, K_rot='auto', rotations='auto', K_s='auto', K_t='auto',
                  N_s='auto', N_t='auto',
                  sigma_eps=4.0, affinity_min=0.5, regroup_every=10, zeta_weight=1.0,
-                 local_rigidity=0.0, inextensible='auto', power_steps=1, delta=1e-8, rho=1.2,
+                 local_rigidity=0.0, inextensible='auto', register_rotations='auto',
+                 power_steps=1, delta=1e-8, rho=1.2,
                  beta0=1e-3, beta_max=1e6,
                  warm_beta0=0.01, eps=1e-12, max_iter=500, spatial=True, temporal=True,
                  random_state=0):
@@ -642,6 +685,7 @@ class GrassmannNRSfM:
         self.zeta_weight = zeta_weight
         self.local_rigidity = local_rigidity
         self.inextensible = inextensible
+        self.register_rotations = register_rotations
         self.power_steps = power_steps
         self.delta = delta
         self.rho = rho
@@ -708,6 +752,10 @@ class GrassmannNRSfM:
             raise InvalidInputError(f'inextensible must be one of {INEXTENSIBLE_CHOICES}; got '
                                     f'{self.inextensible!r}')
         p['inextensible'] = self.inextensible
+        if self.register_rotations not in REGISTRATION_CHOICES:
+            raise InvalidInputError(f'register_rotations must be one of {REGISTRATION_CHOICES}; '
+                                    f'got {self.register_rotations!r}')
+        p['register_rotations'] = self.register_rotations
         for name in ('spatial', 'temporal'):
             value = getattr(self, name)
             if not isinstance(value, (bool, np.bool_)):
@@ -737,7 +785,10 @@ class GrassmannNRSfM:
         """Reconstruct ``W: (2F, P)``. ``init``: optional :class:`WarmStart`; ``progress``:
         optional ``callback(iteration, report)`` called after every iteration."""
         with _blas_threads(BLAS_THREADS):
-            return self._fit(W, init, progress)
+            result = self._fit(W, init, progress)
+            if self._wants_registration(result, init):
+                result = self._registered(W, result, progress)
+            return result
 
     def _fit(self, W, init, progress):
         t_start = time.perf_counter()
@@ -819,6 +870,46 @@ class GrassmannNRSfM:
                            groups=state.labels_original_order(), blocks=state.t_edges.copy(),
                            report=report, C_s=state.C_s.copy(), C_t=state.C_t.copy())
 
+    def _wants_registration(self, result, init):
+        """Whether to re-estimate the rotations from the refined shapes: 'auto', a solve given
+        no WarmStart (the sliding windows pass one), whose inextensible depths were kept and
+        whose rotations spread by more than REGISTRATION_MIN_SPREAD degrees."""
+        from .rotation import rotation_spread
+        return (self._validated()['register_rotations'] == 'auto' and init is None
+                and result.report.inextensible
+                and rotation_spread(result.R) > REGISTRATION_MIN_SPREAD)
+
+    def _registered(self, W, first, progress):
+        """The solve again with the rotations registered to ``first``'s refined shapes
+        (inextensible.register_rotations); kept when its inextensible depths are used too and
+        its edge lengths vary less (same tracks as the 'auto' decision), else ``first``. The
+        report says which, and keeps ``first``'s rotation method."""
+        from .inextensible import length_variation, neighbour_edges, register_rotations
+        start = time.perf_counter()
+        W = validate_tracks(W, min_frames=3, min_points=4)
+        second = self._fit(W, WarmStart(R=register_rotations(first.S, first.R)), progress)
+        check = _check_tracks(W.shape[1], self.random_state)
+        edges = neighbour_edges(W[:, check])
+        before, after = (length_variation(r.S[:, check], *edges) for r in (first, second))
+        kept = second.report.inextensible and after < before
+        note = ('rotations registered to the refined shapes and solved again: edge-length '
+                f'variation {before:.4f} -> {after:.4f} on {check.size} tracks, '
+                f"{'kept' if kept else 'not kept'}")
+        seconds = time.perf_counter() - start
+        if not kept:
+            first.report.notes.append(note)
+            first.report.seconds['rotation registration'] = seconds
+            first.report.seconds['total'] += seconds
+            return first
+        report = second.report
+        report.notes = first.report.notes + [note] + report.notes
+        report.rotation_method, report.K_rot = first.report.rotation_method, first.report.K_rot
+        report.rotation_checked = first.report.rotation_checked
+        report.rotations_registered = True
+        report.seconds = dict(first.report.seconds, **{'rotation registration': seconds})
+        report.seconds['total'] = first.report.seconds['total'] + seconds
+        return second
+
     @staticmethod
     def _wants_inextensible(mode, P, init):
         """Whether the refinement runs: cold solves (no initial shapes; a warm-started window
@@ -837,10 +928,7 @@ class GrassmannNRSfM:
         decision goes to the report's notes."""
         from .inextensible import neighbour_edges, refine_depth
         P = W.shape[1]
-        check = np.arange(P)
-        if mode == 'auto' and P > INEXTENSIBLE_CHECK_POINTS:
-            rng = np.random.default_rng(random_state)
-            check = np.sort(rng.choice(P, INEXTENSIBLE_CHECK_POINTS, replace=False))
+        check = _check_tracks(P, random_state) if mode == 'auto' else np.arange(P)
         _, info = refine_depth(S[:, check], neighbour_edges(W[:, check]))
         before, after = info['length_variation_before'], info['length_variation_after']
         ratio = after / before if before > 0 else 1.0
@@ -934,6 +1022,15 @@ class GrassmannNRSfM:
             cam[:, 2, :] = given[nearest, 2, :]
             cam[known] = given[known]
         return R.transpose(0, 2, 1) @ cam
+
+
+def _check_tracks(P, random_state):
+    """Indices ``(P',)`` of the tracks (all, or a fixed random INEXTENSIBLE_CHECK_POINTS of
+    them) on which the inextensible decisions are made."""
+    if P <= INEXTENSIBLE_CHECK_POINTS:
+        return np.arange(P)
+    rng = np.random.default_rng(random_state)
+    return np.sort(rng.choice(P, INEXTENSIBLE_CHECK_POINTS, replace=False))
 
 
 def align_rotations(R_est, R_known, known):

@@ -59,6 +59,10 @@ SIGN_SWEEPS = 3
 SIGN_ROUNDS = 3
 #: components (beyond the mean) of the world S# projection the signs come from
 SIGN_RANK = 2
+#: register_rotations: alternations (a fixed number: the low-rank model absorbs part of any
+#: rotation, so the alternation creeps on, 1e-3-1e-2 per step in the rotation entries after
+#: 20 steps on 60 x 500 sheets, not a common rotation of the world frame)
+REGISTRATION_ITERATIONS = 20
 #: weight tying each frame's depths to the solver's (relative to the unit edge weights)
 ANCHOR = 1e-3
 #: entries per (frames x edges) chunk: 120 frames x 30,000 tracks (the node under load) peak
@@ -119,11 +123,11 @@ def length_variation(S, i, j):
     return float(_length_stats(as_frames(S, 3), i, j)[1].mean()) if i.size else 0.0
 
 
-def low_rank_depths(X, R, rank=SIGN_RANK):
-    """Camera-frame depths ``(F, P)`` of the shapes ``X: (F, 3, P)`` after projecting their
-    world S# (``(F, 3P)``, through ``R: (F, 3, 3)``) onto its mean plus its top ``rank``
-    components. Two passes over point chunks (an ``F x F`` Gram, then the projection), so
-    nothing ``(F, 3P)``-sized is held."""
+def _low_rank_world(X, R, rank):
+    """Yield ``(points, Y: (F, 3, p))``: chunks of the world shapes of ``X: (F, 3, P)`` (through
+    ``R: (F, 3, 3)``) after projecting their S# (``(F, 3P)``) onto its mean plus its top
+    ``rank`` components. Two passes over point chunks (an ``F x F`` Gram, then the
+    projection), so nothing ``(F, 3P)``-sized is held."""
     F, _, P = X.shape
     Rt = R.transpose(0, 2, 1)
 
@@ -137,12 +141,38 @@ def low_rank_depths(X, R, rank=SIGN_RANK):
         Y, _ = centred_world(points)
         gram += Y @ Y.T
     basis = np.linalg.eigh(gram)[1][:, ::-1][:, :rank]       # (F, rank)
-    z = np.empty((F, P))
     for points in _chunks(P, 3 * F):
         Y, mean = centred_world(points)
-        world = (basis @ (basis.T @ Y)).reshape(F, 3, -1) + mean
+        yield points, (basis @ (basis.T @ Y)).reshape(F, 3, -1) + mean
+
+
+def low_rank_depths(X, R, rank=SIGN_RANK):
+    """Camera-frame depths ``(F, P)`` of the shapes ``X: (F, 3, P)`` after projecting their
+    world S# (through ``R: (F, 3, 3)``) onto its mean plus its top ``rank`` components."""
+    z = np.empty((X.shape[0], X.shape[2]))
+    for points, world in _low_rank_world(X, R, rank):
         z[:, points] = np.einsum('fk,fkp->fp', R[:, 2, :], world)
     return z
+
+
+def register_rotations(S, R, *, rank=SIGN_RANK, iterations=REGISTRATION_ITERATIONS):
+    """World-to-camera rotations ``(F, 3, 3)`` that register the camera-frame shapes
+    ``S: (3F, P)`` (refined depths: full 3D per frame) to their own low-rank world model:
+    alternately project the world S# (through the current rotations, starting from
+    ``R: (F, 3, 3)``) onto its mean plus ``rank`` components, and take each frame's rotation
+    as the proper orthogonal Procrustes fit of its centred shape to that model (generalised
+    Procrustes analysis with a low-rank rather than a rigid mean), ``iterations`` times."""
+    X = as_frames(np.asarray(S, dtype=np.float64), 3)
+    X = X - X.mean(axis=2, keepdims=True)
+    R = validate_rotations(R, X.shape[0]).copy()
+    for _ in range(iterations):
+        cross = np.zeros((X.shape[0], 3, 3))                  # sum_p x_fp y_fp^T
+        for points, world in _low_rank_world(X, R, rank):
+            cross += np.einsum('fip,fjp->fij', X[:, :, points], world)
+        U, _, Vt = np.linalg.svd(cross)
+        U[:, :, 2] *= np.sign(np.linalg.det(U @ Vt))[:, None]
+        R = U @ Vt
+    return R
 
 
 def refine_depth(S, edges, *, R=None, quantile=LENGTH_QUANTILE, sweeps=SIGN_SWEEPS,

@@ -254,6 +254,15 @@ def step_angles(R):
     return np.degrees(np.arccos(cosang))
 
 
+def rotation_spread(R):
+    """Mean angle (degrees) of the rotations ``R: (F, 3, 3)`` from their mean (the rotation
+    nearest to their average): how far the camera turns over the sequence."""
+    U, _, Vt = np.linalg.svd(R.mean(axis=0))
+    mean = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    cosang = np.clip((np.trace(R @ mean.T, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
+    return float(np.degrees(np.arccos(cosang)).mean())
+
+
 def _rotations_from_triple(Pi, G):
     """Rotations from ``Pi: (2F, n)`` and one column triple ``G: (n, 3)``."""
     R, ok = _rotations_from_rows(as_frames(Pi @ G, 2))
