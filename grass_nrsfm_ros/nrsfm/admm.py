@@ -441,8 +441,8 @@ import time
 import numpy as np
 
 from . import grassmann as gm
-from .measurement import (as_frames, centre, from_frames, InvalidInputError, track_scale,
-                          validate_rotations, validate_shapes, validate_tracks)
+from .measurement import (as_frames, centre, from_frames, InvalidInputError, nearest_rotation,
+                          track_scale, validate_rotations, validate_shapes, validate_tracks)
 from .priors import smoothness_weight, TemporalSmoothness
 
 
@@ -1044,8 +1044,7 @@ def align_rotations(R_est, R_known, known):
     best, best_err = None, np.inf
     for cand in (R_est, D @ R_est @ D):
         M = np.einsum('fji,fjk->ik', cand[known], R_known[known])
-        U, _, Vt = np.linalg.svd(M)
-        Q = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+        Q = nearest_rotation(M)
         err = np.linalg.norm(cand[known] @ Q - R_known[known])
         if err < best_err:
             best, best_err = cand @ Q, err

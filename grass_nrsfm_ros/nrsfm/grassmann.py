@@ -18,6 +18,8 @@ Functions (shapes in their docstrings): :func:`projection_kernel`, :func:`c_upda
 """
 import numpy as np
 
+from .measurement import nearest_rotation
+
 
 def projection_kernel(cross, sizes, delta=1e-8):
     """Projection kernel ``Omega_ij = ||Psi_i^T Psi_j||_F^2`` of K Grassmann points.
@@ -145,9 +147,7 @@ def rigid_projection(S, F, weight=1.0, steps=3, similarity=False, axes=None):
     M = X.mean(axis=0)
     scale = np.ones((F, 1, 1))
     for _ in range(steps):
-        U, _, Vt = np.linalg.svd(X @ M.T)                       # (F, 3, 3)
-        U[:, :, 2] *= np.sign(np.linalg.det(U @ Vt))[:, None]
-        Q = U @ Vt
+        Q = nearest_rotation(X @ M.T)                           # (F, 3, 3)
         QtX = np.matmul(Q.transpose(0, 2, 1), X)
         if similarity:
             scale = np.einsum('fij,ij->f', QtX, M)[:, None, None] / max(np.vdot(M, M), 1e-300)

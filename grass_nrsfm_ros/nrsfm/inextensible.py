@@ -44,7 +44,7 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 from sklearn.neighbors import NearestNeighbors
 
-from .measurement import as_frames, from_frames, validate_rotations
+from .measurement import as_frames, from_frames, nearest_rotation, validate_rotations
 from .rotation import _normalised_svd
 
 #: neighbours per point in the edge graph
@@ -169,9 +169,7 @@ def register_rotations(S, R, *, rank=SIGN_RANK, iterations=REGISTRATION_ITERATIO
         cross = np.zeros((X.shape[0], 3, 3))                  # sum_p x_fp y_fp^T
         for points, world in _low_rank_world(X, R, rank):
             cross += np.einsum('fip,fjp->fij', X[:, :, points], world)
-        U, _, Vt = np.linalg.svd(cross)
-        U[:, :, 2] *= np.sign(np.linalg.det(U @ Vt))[:, None]
-        R = U @ Vt
+        R = nearest_rotation(cross)
     return R
 
 

@@ -112,3 +112,11 @@ def track_scale(Wc):
     if not np.isfinite(scale) or scale <= 0.0:
         raise InvalidInputError('W has no spread: every track is constant within each frame')
     return scale
+
+
+def nearest_rotation(M):
+    """The proper rotations (det +1) nearest to ``M: (..., 3, 3)`` in Frobenius norm: ``U V^T``
+    of the SVD, with the last column of U negated where that would be a reflection."""
+    U, _, Vt = np.linalg.svd(M)
+    U[..., :, -1] *= np.where(np.linalg.det(U @ Vt) < 0, -1.0, 1.0)[..., None]
+    return U @ Vt

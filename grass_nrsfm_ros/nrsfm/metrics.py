@@ -11,16 +11,15 @@ Both take ``S: (3F, P)`` in camera coordinates.
 """
 import numpy as np
 
-from .measurement import as_frames, from_frames, InvalidInputError, validate_shapes
+from .measurement import (as_frames, from_frames, InvalidInputError, nearest_rotation,
+                          validate_shapes)
 
 
 def _nearest_orthogonal(M, reflection):
     """Nearest orthogonal matrices to ``M: (..., 3, 3)`` (``U V^T``); det +1 unless reflection."""
-    U, _, Vt = np.linalg.svd(M)
     if not reflection:
-        d = np.where(np.linalg.det(U @ Vt) < 0, -1.0, 1.0)
-        U = U.copy()
-        U[..., :, -1] *= d[..., None]
+        return nearest_rotation(M)
+    U, _, Vt = np.linalg.svd(M)
     return U @ Vt
 
 

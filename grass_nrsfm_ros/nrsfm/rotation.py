@@ -17,7 +17,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from .measurement import as_frames, centre, from_frames, track_scale, validate_tracks
+from .measurement import (as_frames, centre, from_frames, nearest_rotation, track_scale,
+                          validate_tracks)
 
 #: ratio to the first singular value below which W is treated as having lower rank
 RANK_TOL = 1e-6
@@ -257,8 +258,7 @@ def step_angles(R):
 def rotation_spread(R):
     """Mean angle (degrees) of the rotations ``R: (F, 3, 3)`` from their mean (the rotation
     nearest to their average): how far the camera turns over the sequence."""
-    U, _, Vt = np.linalg.svd(R.mean(axis=0))
-    mean = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    mean = nearest_rotation(R.mean(axis=0))
     cosang = np.clip((np.trace(R @ mean.T, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
     return float(np.degrees(np.arccos(cosang)).mean())
 
