@@ -360,6 +360,13 @@ Tried and NOT adopted (no general gain):
   a WarmStart): registering in every window after the first (60 x 1,000, window 30 / stride 10,
   'model') gave bending 0.192 -> 0.180, articulated 0.0503 -> 0.0503, twisting 0.172 -> 0.175,
   waving 0.2195 -> 0.2295, for 1.25-1.6x the CPU per window.
+  NOT adopted (session 8): deciding the registration on a pilot to save the second full solve on
+  large P (a cold solve of 2,000 random tracks; when it refines and registers, a second pilot with
+  the registered rotations, kept on the same edge-length rule; then one full solve with the kept
+  rotations, or a plain cold one). 15 cases (5 kinds x 3 cameras, seed 0, 60 x 8,000): CPU 274 ->
+  238 s (-13 %; kept cases 19-25 -> 14-18 s, but +4 s where nothing is tried, 9.7 -> 13.8 s),
+  geometric mean e3D 0.0827 -> 0.0845: twisting orbit 0.049 -> 0.076 (the pilot's rotations),
+  bending orbit / shaky 0.140 / 0.139 -> 0.135 / 0.136.
   NOT adopted (session 6): choosing the rotations on the refined results instead of the plain
   check. Both full solves (rotations 'dai' and 'rigid', refinement on) on 48 cases per seed set
   (5 kinds x 3 cameras at 60 x 500, faces 99 x 2,000 orbit), geometric mean e3D seeds 0-2 /
@@ -404,11 +411,15 @@ Diagnosis of the remaining failures (branch accuracy3; 60 x 2000, GT rotations u
   norm (358) than BMM's (295), and an exact rank-7 S# (relative residual 7e-6, found by LM on
   the rank-7 factorisation from BMM's depths) lies at e3D 0.213: on the rank-7 manifold the map
   from depths to its normal space has condition number ~5e4 (2e-5 relative smallest singular
-  value; rank 6: 4e-5). Larger yaw (+-60 / +-90 degrees, GT R) does not rescue it (ours 0.149 /
-  0.189 vs rigid 0.188 / 0.205). Dai's rotations add to it (K=3: 22 degrees, 0.256; K=1 0.213;
-  TK R 0.192). TK beats everything because, with per-frame Procrustes, its rigid shape is the
-  best rigid fit per frame; its depths (error 0.196 of the shape norm, seed 1) beat our
-  nuclear-norm depths (0.315); [W_f; z_rigid_f] scores 0.172 vs rigid 0.178.
+  value; rank 6: 4e-5). Session 8, 60 x 500 orbit 0, GT R: alternating least squares on the
+  rank-K world basis started 1 % from the truth drifts along that flat valley to residual 2e-5
+  at e3D 0.105 (K = 7), from random starts 0.17-0.22; temporal coefficients restricted to 4-12
+  DCT components do not pin it (0.09-0.99). Larger yaw (+-60 / +-90 degrees, GT R) does not
+  rescue it (ours 0.149 / 0.189 vs rigid 0.188 / 0.205). Dai's rotations add to it (K=3: 22
+  degrees, 0.256; K=1 0.213; TK R 0.192). TK beats everything because, with per-frame
+  Procrustes, its rigid shape is the best rigid fit per frame; its depths (error 0.196 of the
+  shape norm, seed 1) beat our nuclear-norm depths (0.315); [W_f; z_rigid_f] scores 0.172 vs
+  rigid 0.178.
   Bending seed 1 is a rotation problem: with GT R ours gives 0.098 (BMM 0.107, rigid 0.149),
   W has rank 18, the depth map is better conditioned (3.7e-4); Dai's rotations are 10-44
   degrees off at every K (K = 1..5: ours 0.161 / 0.163 / 0.166 / 0.173 (chosen) / 0.183), TK's
