@@ -387,6 +387,13 @@ Tried and NOT adopted (no general gain):
   orbit 0 0.155 -> 0.30-0.38. The right r differs by kind, and neither the 5-fold held-out-
   frame error of W (falls monotonically in r), the edge-length variation, the condition of M
   nor the ratio of depth to image extent picks it or tells when not to debias.
+  Session 8, only where the refinement is declined (so not waving or bending): inflating orbit /
+  shaky seeds 0-5 0.014-0.084 -> 0.004-0.044 at r = 3-5 (orbit 4, worse than rigid, 0.084 ->
+  0.040), but the dense faces (99 x 2,000, seeds 0-5) swing both ways at every r (r = 3: face 0
+  0.045 -> 0.030, face 5 0.053 -> 0.070; r = 4: face 1 0.080 -> 0.152) and blow up under noise
+  r = 0.02 at r >= 4 (0.13-0.39); mocap needs r >= 8 to come back to the solver's figures
+  (pickup r = 3 0.045 vs 0.016). Neither the smallest r whose W residual reaches the solver's
+  nor a bound on the condition of M picks a safe r (face 3 / 5 pick the worse one).
   NOT adopted (session 7): choosing K_rot (1..5, or the rigid rotations) after full solves.
   90 cases (5 kinds x 3 cameras x seeds 0-5, 60 x 500), each solved with every candidate:
   geometric mean e3D seeds 0-2 / 3-5: present rule 0.0725 / 0.1013, oracle 0.0613 / 0.0814
