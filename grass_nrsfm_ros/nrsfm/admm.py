@@ -315,7 +315,13 @@ Tried and NOT adopted (no general gain):
   No threshold on any of the four separates gain from harm with a margin; the 0.6 rule stays.
   Nor did lengths and signs from x, y denoised by a rank-3K (or 3K + 3) truncation of W help:
   e3D worse on every case (twisting orbit r = 0.03 0.079 -> 0.089 / 0.107, articulated orbit
-  0.039 -> 0.057 / 0.090) and the ratios higher (0.64 -> 0.68 / 0.70).
+  0.039 -> 0.057 / 0.090) and the ratios higher (0.64 -> 0.68 / 0.70). Session 8, the floor
+  taken from the solver's own relative reprojection residual instead (ratio of
+  sqrt(after^2 - (c res)^2) to the same of before; 128 cases: 5 kinds x 3 cameras plus the
+  99 x 2,000 face, seeds 0-1, r = 0 / 0.01 / 0.02 / 0.03), geometric mean e3D: the present rule
+  0.0945, oracle 0.0889, 'never' 0.1263; c = 0.7 0.0923 (-2 %), but at c >= 0.8 inflating orbit
+  / shaky at r = 0.03 (whose refined variation sits at the residual) take the refinement and
+  get 3.5-5.7x worse; threshold 0.7 without a floor 0.0914 but harmful on 11 cases. Not taken.
   KEPT (session 6): once 'auto' has decided (on the sign sweeps alone, so every decision above
   stands), the depths are refined with the solver's rotations: 3 rounds of signs from the
   world S# projected to its mean + 2 components (inextensible.py has the variants). Against
