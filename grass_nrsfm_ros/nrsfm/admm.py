@@ -91,7 +91,10 @@ the paper's noise level: the rank-N zeta projections denoise. Choices behind tha
 * gamma = 1e-3 (relative): 3e-3 equal, 1e-2 worse (0.036 vs 0.027 on a scratch face),
   3e-4 / 1e-4 much worse (0.092 / 0.237: too little depth).
 * rho = 1.2: 115 iterations instead of 219 at equal accuracy (0.0271 vs 0.0288 on a scratch
-  99 x 2000 face).
+  99 x 2000 face). rho = 1.3 (session 9; 80 iterations, CPU -21 % on 53 cases: 5 kinds x 3
+  cameras x seeds 0-2 at 60 x 500, faces 99 x 2,000 seeds 0-2, 5 mocap): geometric mean e3D
+  1.09x, worse (> 3 %) on 16 (inflating 1.6-2.4x, Torresani face 0.0165 -> 0.0371, twisting orbit
+  1 1.41x), better on 4. Kept at 1.2.
 * Regrouping (xi): with affinity_min = 0.5 the LRR affinity of C almost never lets groups
   exchange points (C_s stays near-diagonal); with affinity_min = 0 trajectories do move
   (162 moves) but e3D is unchanged (0.0270 vs 0.0271). Kept as the paper describes, cheap
