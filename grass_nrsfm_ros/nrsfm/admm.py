@@ -280,10 +280,11 @@ Tried and NOT adopted (no general gain):
   the rigid rotations. Still wrong at any margin: bending orbit 0 (36 % lower, Dai's would
   give 0.102 vs 0.159 once the inextensible depths run).
 * KEPT: the inextensible depth refinement, ``inextensible='auto'`` (inextensible.py; cold
-  solves, P >= 240). Why: a rank constraint cannot tell an out-of-plane wave seen obliquely
-  from an in-plane one, and the minimum nuclear norm flattens depth (see the waving diagnosis
-  below), while for a surface that does not stretch the images carry the depth magnitudes:
-  an edge's longest image is its length, and |dz| = sqrt(l^2 - |dxy|^2) in every frame. Signs
+  solves, P >= 100; 240 until session 9). Why: a rank constraint cannot tell an out-of-plane
+  wave seen obliquely from an in-plane one, and the minimum nuclear norm flattens depth (see
+  the waving diagnosis below), while for a surface that does not stretch the images carry the
+  depth magnitudes: an edge's longest image is its length, and |dz| = sqrt(l^2 - |dxy|^2) in
+  every frame. Signs
   come from the solver (then from the other frames: KEPT (session 6) below). 'auto' keeps the
   refined depths when they cut the variation of the 3D edge lengths below INEXTENSIBLE_RATIO =
   0.6 of the solver's, judged on 2,000 tracks. Same 54 cases as below (6 mocap, 5 kinds x
@@ -574,9 +575,16 @@ REGISTRATION_CHOICES = ('auto', 'never')
 #: angle from their mean): with less camera motion the registration follows the deformation
 #: (measured: twisting wobble, 2.6-3.7 degrees, 1.04-1.5x worse without this condition)
 REGISTRATION_MIN_SPREAD = 5.0
-#: inextensible='auto' applies to tracks this dense (the spatial branch's own threshold: two
-#: groups of 20 (N_s + 1)); sparse markers (mocap) are no surface mesh
-INEXTENSIBLE_MIN_POINTS = 240
+#: inextensible='auto' applies to tracks this dense: sparse markers (mocap, 40-91 here) are
+#: no surface mesh. Session 9 (was 240, the spatial branch's threshold, never measured for
+#: this): synthetic surfaces of 120 / 200 tracks (5 kinds x 3 cameras x seeds 0-2, 60 frames)
+#: 0.58x / 0.58x e3D with the refinement ('auto' uses it on 31 of 45), worse than rigid 10 / 11
+#: -> 7 / 7; validation at 150 tracks, seeds 3-5: 0.83x, better on 19, worse on 5 (wobble
+#: cameras, 1.06-1.20x), worse than rigid 12 -> 10 (bending wobble 3 newly: 0.142 -> 0.159,
+#: rigid 0.150); under a synthetic perspective camera (120 tracks) 0.91x / 0.98x. Below 100 the
+#: mocap sets all decline it (shark at ratio 0.61, against 0.6), but the perspective
+#: kinect_paper subset (90 tracks, 10 frames) would take it and lose (0.113 -> 0.169)
+INEXTENSIBLE_MIN_POINTS = 100
 #: ... and keeps the inextensible depths when they leave at most this share of the solver's
 #: edge-length variation (measured: 0.05-0.5 on bending / twisting / hinged sheets, 0.68-0.92
 #: on dense faces with orbit or shaky head motion, 0.75-0.83 on the inflating surface)
