@@ -581,7 +581,8 @@ REGISTRATION_MIN_SPREAD = 5.0
 #: 0.58x / 0.58x e3D with the refinement ('auto' uses it on 31 of 45), worse than rigid 10 / 11
 #: -> 7 / 7; validation at 150 tracks, seeds 3-5: 0.83x, better on 19, worse on 5 (wobble
 #: cameras, 1.06-1.20x), worse than rigid 12 -> 10 (bending wobble 3 newly: 0.142 -> 0.159,
-#: rigid 0.150); under a synthetic perspective camera (120 tracks) 0.91x / 0.98x. Below 100 the
+#: rigid 0.150); noise r = 0.02 (150 tracks, seeds 0-1): used on 2 of 30, both better, none
+#: worse; under a synthetic perspective camera (120 tracks) 0.91x / 0.98x. Below 100 the
 #: mocap sets all decline it (shark at ratio 0.61, against 0.6), but the perspective
 #: kinect_paper subset (90 tracks, 10 frames) would take it and lose (0.113 -> 0.169)
 INEXTENSIBLE_MIN_POINTS = 100
