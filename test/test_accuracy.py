@@ -94,7 +94,8 @@ def test_mocap_beats_published_bmm(name):
 # normalised image coordinates through an orthographic model: e3D with a per-frame scale
 # (the reconstruction is in normalised units, the ground truth in mm)
 PERSPECTIVE = {
-    # measured 0.1003 (rigid 0.2663)
+    # measured 0.1127 (rigid 0.2663); 0.0982 until the rotation check (69e72be), which takes the
+    # rigid rotations here (S# norm 11.3 % lower, admm.py); the threshold was not raised with it
     'kinect_paper': ('perspective_subsets/kinect_paper.npz', 0.115),
     # measured 0.1344 (rigid 0.3862)
     'white_cartoon_tshirt': ('perspective_subsets/white_cartoon_tshirt.npz', 0.155),
