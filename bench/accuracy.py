@@ -33,6 +33,9 @@ def cases(mode):
     F, P = mode.pick(None, (30, 500), (60, 3000))
     for kind in kinds():
         yield (f'synthetic_{kind}', 'synthetic', *common.synthetic(kind, F, P))
+    # 40 % of the tracks in two patches of 1 % of the surface each (the solver thins them)
+    yield ('synthetic_inflating_clustered', 'synthetic',
+           *common.synthetic('inflating', F, P, clustered=0.4))
     F, P = mode.pick(None, (30, 2000), (99, 28880))
     face = common.dense_face(F, P)
     if face is None:

@@ -145,10 +145,11 @@ def load_dataset(name):
         return npz['W'].astype(np.float64), npz['S'].astype(np.float64), family
 
 
-def synthetic(kind, F, P, seed=0, noise=0.0):
+def synthetic(kind, F, P, seed=0, noise=0.0, clustered=0.0):
     """``(W, S)`` of :func:`grass_nrsfm_ros.nrsfm.synthetic.make_sequence` (orbiting camera)."""
     from grass_nrsfm_ros.nrsfm.synthetic import make_sequence
-    seq = make_sequence(kind, n_frames=F, n_points=P, seed=seed, noise=noise)
+    seq = make_sequence(kind, n_frames=F, n_points=P, seed=seed, noise=noise,
+                        clustered=clustered)
     return seq.W, seq.S
 
 

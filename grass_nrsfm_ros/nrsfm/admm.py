@@ -462,7 +462,7 @@ iteration, CPU time grows linearly in P (exponent 0.92-0.96 for P = 1k..70k at F
 and costs 0.14-0.6 of one economy SVD of S# (F = 100). Memory: O(F P), nothing P x P; peak
 RSS above the loaded W for the face 687 MB -> 333 MB (``python -m bench.scale``).
 """
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 import inspect
 import time
 
@@ -514,6 +514,7 @@ class SolverReport:
     rotation_checked: bool = False               # the 'auto' check chose rotation_method
     inextensible: bool = False                   # inextensible depths replaced the solver's
     rotations_registered: bool = False           # R re-estimated from the refined shapes, kept
+    thinned_points: int = 0                      # tracks left out of the solve, filled in
     fallback: str = None
     notes: list = field(default_factory=list)    # automatic decisions worth knowing
 
@@ -570,6 +571,7 @@ BLAS_THREADS = 1
 
 ROTATION_CHOICES = ('auto', 'dai', 'rigid')
 INEXTENSIBLE_CHOICES = ('auto', 'always', 'never')
+THINNING_CHOICES = ('auto', 'never')
 REGISTRATION_CHOICES = ('auto', 'never')
 #: register_rotations='auto' needs the rotations to spread by more than this (degrees, mean
 #: angle from their mean): with less camera motion the registration follows the deformation
@@ -586,6 +588,9 @@ REGISTRATION_MIN_SPREAD = 5.0
 #: mocap sets all decline it (shark at ratio 0.61, against 0.6), but the perspective
 #: kinect_paper subset (90 tracks, 10 frames) would take it and lose (0.113 -> 0.169)
 INEXTENSIBLE_MIN_POINTS = 100
+#: fewest tracks that 'auto' thins (marker sets are never thinned: every marker is a part of
+#: the body; dance has 12 % of its 75 markers over the density limit)
+THINNING_MIN_POINTS = 100
 #: ... and keeps the inextensible depths when they leave at most this share of the solver's
 #: edge-length variation (measured: 0.05-0.5 on bending / twisting / hinged sheets, 0.68-0.92
 #: on dense faces with orbit or shaky head motion, 0.75-0.83 on the inflating surface)
@@ -680,6 +685,11 @@ class GrassmannNRSfM:
                                'lengths vary less, if the rotations spread by more than '
                                f"{REGISTRATION_MIN_SPREAD:g} degrees; or 'never'",
                                "'auto' or 'never'"),
+        'thinning': ("'auto': where a cluster of tracks is far denser than the rest of the "
+                     f'surface (P >= {THINNING_MIN_POINTS}; density.py), the shapes are solved '
+                     'on a thinned set and the dropped tracks filled in from their neighbours, '
+                     "so that the cluster does not outweigh the rest; 'never': every track is "
+                     'solved', "'auto' or 'never'"),
         'power_steps': ('warm-started power iterations per ADMM iteration for spatial bases',
                         'int >= 1'),
         'delta': ('Omega safeguard: adds delta * trace(Omega)/K * I', 'float >= 0'),
@@ -699,7 +709,7 @@ class GrassmannNRSfM:
                  N_s='auto', N_t='auto',
                  sigma_eps=4.0, affinity_min=0.5, regroup_every=10, zeta_weight=1.0,
                  local_rigidity=0.0, inextensible='auto', register_rotations='auto',
-                 power_steps=1, delta=1e-8, rho=1.2,
+                 thinning='auto', power_steps=1, delta=1e-8, rho=1.2,
                  beta0=1e-3, beta_max=1e6,
                  warm_beta0=0.01, eps=1e-12, max_iter=500, spatial=True, temporal=True,
                  random_state=0):
@@ -722,6 +732,7 @@ class GrassmannNRSfM:
         self.local_rigidity = local_rigidity
         self.inextensible = inextensible
         self.register_rotations = register_rotations
+        self.thinning = thinning
         self.power_steps = power_steps
         self.delta = delta
         self.rho = rho
@@ -792,6 +803,10 @@ class GrassmannNRSfM:
             raise InvalidInputError(f'register_rotations must be one of {REGISTRATION_CHOICES}; '
                                     f'got {self.register_rotations!r}')
         p['register_rotations'] = self.register_rotations
+        if self.thinning not in THINNING_CHOICES:
+            raise InvalidInputError(f'thinning must be one of {THINNING_CHOICES}; got '
+                                    f'{self.thinning!r}')
+        p['thinning'] = self.thinning
         for name in ('spatial', 'temporal'):
             value = getattr(self, name)
             if not isinstance(value, (bool, np.bool_)):
@@ -847,6 +862,15 @@ class GrassmannNRSfM:
             report.notes.append(note)
             report.rotation_checked = True
         t = timer.add('rotation', t)
+        W_all, keep = W, self._thinned_tracks(W, p)
+        if keep is not None:
+            W, init, groups = _subset_tracks(W, init, groups, keep)
+            Wn, P = centre(W)[0] / scale, keep.size
+            report.thinned_points = W_all.shape[1] - P
+            report.notes.append(f'thinned: {P} of {W_all.shape[1]} tracks solved, the '
+                                f'{report.thinned_points} in over-dense clusters filled in '
+                                'from their neighbours')
+        t = timer.add('thinning', t)
 
         K_s, K_t, N_s, N_t = self._sizes(p, F, P, groups)
         if p['spatial'] and K_s == 1 and p['K_s'] == 'auto':
@@ -900,11 +924,26 @@ class GrassmannNRSfM:
         if self._wants_inextensible(p['inextensible'], P, init):
             S_cam = self._inextensible(S_cam, R, W, p['inextensible'], report,
                                        p['random_state'])
-            timer.add('inextensible', t)
+            t = timer.add('inextensible', t)
+        labels = state.labels_original_order()
+        if keep is not None:
+            from .density import fill_dropped
+            S_cam, labels = fill_dropped(S_cam, labels, W_all, keep)
+            _reprojection_over_all(report, S_cam, W_all)
+            timer.add('thinning', t)
         report.seconds = dict(timer.seconds, total=time.perf_counter() - t_start)
-        return NRSfMResult(S=S_cam, R=R, translation=translation,
-                           groups=state.labels_original_order(), blocks=state.t_edges.copy(),
-                           report=report, C_s=state.C_s.copy(), C_t=state.C_t.copy())
+        return NRSfMResult(S=S_cam, R=R, translation=translation, groups=labels,
+                           blocks=state.t_edges.copy(), report=report, C_s=state.C_s.copy(),
+                           C_t=state.C_t.copy())
+
+    @staticmethod
+    def _thinned_tracks(W, p):
+        """Sorted indices of the tracks of ``W: (2F, P)`` to solve ('auto', dense tracks, a
+        cluster found: density.thinned_tracks), or None for all."""
+        if p['thinning'] == 'never' or W.shape[1] < THINNING_MIN_POINTS:
+            return None
+        from .density import thinned_tracks
+        return thinned_tracks(W, p['random_state'])
 
     def _wants_registration(self, result, init):
         """Whether to re-estimate the rotations from the refined shapes: 'auto', a solve given
@@ -1058,6 +1097,23 @@ class GrassmannNRSfM:
             cam[:, 2, :] = given[nearest, 2, :]
             cam[known] = given[known]
         return R.transpose(0, 2, 1) @ cam
+
+
+def _reprojection_over_all(report, S, W):
+    """The report's reprojection figures over every track of ``W: (2F, P)`` (the filled ones'
+    x, y are their data) for ``S: (3F, P)``."""
+    Wc = centre(W)[0]
+    residual = as_frames(S, 3)[:, :2, :].reshape(Wc.shape) - Wc
+    report.reprojection_rms = float(np.sqrt(np.mean(residual ** 2)))
+    report.reprojection_relative = report.reprojection_rms / float(np.sqrt(np.mean(Wc ** 2)))
+
+
+def _subset_tracks(W, init, groups, keep):
+    """``(W[:, keep], init, groups)`` restricted to the tracks ``keep``."""
+    S = None if init.S is None else np.asarray(init.S)[:, keep]
+    if groups is not None:
+        groups = np.unique(groups[keep], return_inverse=True)[1].astype(np.int64)
+    return W[:, keep], replace(init, S=S, groups=groups), groups
 
 
 def _check_tracks(P, random_state):

@@ -77,6 +77,15 @@ ANCHOR = 1e-3
 CHUNK = 1 << 20
 
 
+def trajectory_embedding(W, dims=EMBED_DIMS):
+    """``(P, n)``: the tracks of ``W: (2F, P)`` as points in the space of their leading ``n =
+    min(dims, rank)`` principal components (the rotation step's SVD of the centred, unit-RMS
+    tracks); nearby points are nearby on the surface."""
+    _, d, Vt, _, _ = _normalised_svd(W)
+    n = min(dims, d.size)
+    return (d[:n, None] * Vt[:n]).T
+
+
 def neighbour_edges(W, k=NEIGHBOURS):
     """Edges ``(i, j): (E,)`` (``i < j``, unique) joining each track of ``W: (2F, P)`` to its
     ``k`` nearest in a ``EMBED_DIMS``-dimensional embedding of the trajectories (their leading
@@ -87,9 +96,7 @@ def neighbour_edges(W, k=NEIGHBOURS):
     relative length variation (pure noise over almost nothing) would swamp the 'auto'
     decision's mean. Each track is joined to its ``k`` nearest non-coincident tracks instead.
     """
-    _, d, Vt, _, _ = _normalised_svd(W)
-    n = min(EMBED_DIMS, d.size)
-    X = (d[:n, None] * Vt[:n]).T                             # (P, n)
+    X = trajectory_embedding(W)
     P = X.shape[0]
     m = min(k + 1 + COINCIDENT_SLACK, P)
     dist, idx = NearestNeighbors(n_neighbors=m).fit(X).kneighbors(X)

@@ -312,12 +312,19 @@ def observe(name, S_world, R, *, noise=0.0, translation=0.0, rng_translation, rn
                     translation=shift)
 
 
+#: make_sequence(clustered=...): lower-left corners and side of the two dense patches (uv)
+_CLUSTER_CORNERS = ((0.2, 0.2), (0.7, 0.7))
+_CLUSTER_SIDE = 0.1
+
+
 def make_sequence(kind, n_frames=60, n_points=2000, *, noise=0.0, camera='orbit', seed=0,
-                  translation=0.0):
+                  translation=0.0, clustered=0.0):
     """A synthetic deforming dense sequence with ground truth.
 
     ``kind`` one of :func:`kinds`, ``camera`` one of :func:`camera_motions`. Points are drawn
-    uniformly in the surface's parameters. ``noise`` is the paper's r (sigma = r max|W|),
+    uniformly in the surface's parameters, except a share ``clustered`` of them, which lie in
+    two patches of 1 % of the parameter area each (a tracker's textured spots; the others
+    stay as they would be without). ``noise`` is the paper's r (sigma = r max|W|),
     ``translation`` the peak per-frame translation as a fraction of max|centred W|.
     Returns a :class:`Sequence` with ``W: (2F, P)``, ``S: (3F, P)``, ``R: (F, 3, 3)``.
     """
@@ -325,11 +332,17 @@ def make_sequence(kind, n_frames=60, n_points=2000, *, noise=0.0, camera='orbit'
         raise ValueError(f'unknown kind {kind!r}; choose from {kinds()}')
     if n_frames < 1 or n_points < 1:
         raise ValueError(f'need n_frames >= 1 and n_points >= 1; got {n_frames}, {n_points}')
+    if not 0.0 <= clustered <= 1.0:
+        raise ValueError(f'clustered must be a share in [0, 1]; got {clustered!r}')
     rng_points, rng_camera, rng_translation, rng_noise = _streams(seed)
     uv = rng_points.random((n_points, 2))
+    n = int(round(clustered * n_points))
+    for corner, patch in zip(_CLUSTER_CORNERS, (slice(0, n // 2), slice(n // 2, n))):
+        uv[patch] = corner + _CLUSTER_SIDE * uv[patch]
     S_world = from_frames(_KINDS[kind](uv, _times(n_frames)))
     R = camera_rotations(camera, n_frames, rng_camera)
-    meta = {'generator': __name__, 'kind': kind, 'camera_motion': camera, 'seed': seed}
+    meta = {'generator': __name__, 'kind': kind, 'camera_motion': camera, 'seed': seed,
+            'clustered': float(clustered)}
     return observe(f'{kind}_{camera}', S_world, R, noise=noise, translation=translation,
                    rng_translation=rng_translation, rng_noise=rng_noise, meta=meta)
 
