@@ -131,7 +131,7 @@ def fill_dropped(S_kept, labels_kept, W, keep):
     Wc = W - W.mean(axis=1, keepdims=True)
     kept = as_frames(S_kept, 3).copy()
     kept[:, :2, :] += Wc[:, keep].mean(axis=1).reshape(F, 2, 1)   # to the mean of all tracks
-    nbrs, weights = _reconstruction_weights(Wc, keep, dropped)
+    nbrs, weights = _reconstruction_weights(Wc / np.sqrt(np.mean(Wc ** 2)), keep, dropped)
     S = np.empty((F, 3, P))
     S[:, :, keep] = kept
     S[:, :2, dropped] = Wc[:, dropped].reshape(F, 2, -1)
@@ -145,7 +145,8 @@ def fill_dropped(S_kept, labels_kept, W, keep):
 
 def _reconstruction_weights(Wc, keep, dropped, k=FILL_NEIGHBOURS):
     """``(neighbours: (D, k)`` indices into ``keep``, ``weights: (D, k)`` summing to 1) that
-    best reproduce each dropped column of ``Wc: (2F, P)`` from its nearest kept columns."""
+    best reproduce each dropped column of ``Wc: (2F, P)`` (centred, unit RMS) from its nearest
+    kept columns."""
     k = min(k, keep.size)
     W_kept = Wc[:, keep]
     nbrs = NearestNeighbors(n_neighbors=k).fit(W_kept.T).kneighbors(
