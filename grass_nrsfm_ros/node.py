@@ -288,7 +288,8 @@ class ReconstructionNode(Node):
             latency_seconds=time.monotonic() - window.closed_at,
             iterations=getattr(report, 'iterations', ''),
             reprojection_residual=self.pipeline.previous.residual,
-            tracks_in_window=window.ids.size, frames_in_window=window.n_frames)
+            tracks_in_window=window.ids.size, frames_in_window=window.n_frames,
+            tracks_thinned=getattr(report, 'thinned_points', ''))
         if not self._stopping.is_set():
             self._publish_diagnostics()
 

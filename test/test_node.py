@@ -90,7 +90,7 @@ def test_node_reconstructs_a_30hz_stream(node_process, tmp_path):
     assert feeder.wait_for(lambda: feeder.diagnostics, 5)
     keys = {kv.key for kv in feeder.diagnostics[-1].status[0].values}
     assert {'windows solved', 'solve seconds', 'iterations', 'reprojection residual',
-            'tracks in window', 'dropped windows', 'dropped messages'} <= keys
+            'tracks in window', 'tracks thinned', 'dropped windows', 'dropped messages'} <= keys
     proc.send_signal(signal.SIGINT)
     assert proc.wait(15) == 0
     # the recording, read back by rosbags: every input and output message, in order
