@@ -1029,7 +1029,7 @@ class GrassmannNRSfM:
             if groups.shape != (P,) or groups.dtype.kind not in 'iu':
                 raise InvalidInputError(f'init.groups must be ({P},) integers; got '
                                         f'{groups.shape} {groups.dtype}')
-            groups = np.unique(groups, return_inverse=True)[1].astype(np.int64)
+            groups = _dense_labels(groups)
         if init.R is not None:
             validate_rotations(init.R, F, name='init.R')
         if init.S is not None:
@@ -1105,15 +1105,19 @@ def _reprojection_over_all(report, S, W):
     Wc = centre(W)[0]
     residual = as_frames(S, 3)[:, :2, :].reshape(Wc.shape) - Wc
     report.reprojection_rms = float(np.sqrt(np.mean(residual ** 2)))
-    report.reprojection_relative = report.reprojection_rms / float(np.sqrt(np.mean(Wc ** 2)))
+    report.reprojection_relative = report.reprojection_rms / track_scale(Wc)
 
 
 def _subset_tracks(W, init, groups, keep):
-    """``(W[:, keep], init, groups)`` restricted to the tracks ``keep``."""
+    """``(W[:, keep], init, groups)`` restricted to the tracks ``keep`` (``groups``: the
+    checked labels, ``init.groups`` is not read again)."""
     S = None if init.S is None else np.asarray(init.S)[:, keep]
-    if groups is not None:
-        groups = np.unique(groups[keep], return_inverse=True)[1].astype(np.int64)
-    return W[:, keep], replace(init, S=S, groups=groups), groups
+    return W[:, keep], replace(init, S=S), None if groups is None else _dense_labels(groups[keep])
+
+
+def _dense_labels(groups):
+    """``groups: (P,)`` integer labels renumbered 0 .. n_groups - 1 (int64)."""
+    return np.unique(groups, return_inverse=True)[1].astype(np.int64)
 
 
 def _check_tracks(P, random_state):

@@ -64,7 +64,7 @@ import numpy as np
 from sklearn.neighbors import NearestNeighbors
 
 from .inextensible import trajectory_embedding
-from .measurement import as_frames, from_frames
+from .measurement import as_frames, centre, from_frames, track_scale
 
 #: fewest neighbours of the density estimate
 DENSITY_NEIGHBOURS = 8
@@ -129,18 +129,19 @@ def fill_dropped(S_kept, labels_kept, W, keep):
     nearest kept neighbour's); S centred on the mean of all the tracks of ``W: (2F, P)``."""
     F, P = W.shape[0] // 2, W.shape[1]
     dropped = np.setdiff1d(np.arange(P), keep)
-    Wc = W - W.mean(axis=1, keepdims=True)
+    Wc = centre(W)[0]
     kept = as_frames(S_kept, 3).copy()
     kept[:, :2, :] += Wc[:, keep].mean(axis=1).reshape(F, 2, 1)   # to the mean of all tracks
-    nbrs, weights = _reconstruction_weights(Wc / np.sqrt(np.mean(Wc ** 2)), keep, dropped)
+    nbrs, weights = _reconstruction_weights(Wc / track_scale(Wc), keep, dropped)
     S = np.empty((F, 3, P))
     S[:, :, keep] = kept
     S[:, :2, dropped] = Wc[:, dropped].reshape(F, 2, -1)
     S[:, 2, dropped] = np.einsum('fdk,dk->fd', kept[:, 2, :][:, nbrs], weights)
     S[:, 2, :] -= S[:, 2, :].mean(axis=1, keepdims=True)
-    labels = np.empty(P, dtype=np.asarray(labels_kept).dtype)
+    labels_kept = np.asarray(labels_kept)
+    labels = np.empty(P, dtype=labels_kept.dtype)
     labels[keep] = labels_kept
-    labels[dropped] = np.asarray(labels_kept)[nbrs[:, 0]]
+    labels[dropped] = labels_kept[nbrs[:, 0]]
     return from_frames(S), labels
 
 
