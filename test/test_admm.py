@@ -181,6 +181,7 @@ def test_invalid_tracks_raise_clear_errors(W, needle):
     (dict(N_t=0), 'N_t'), (dict(zeta_weight=2.0), 'zeta_weight'), (dict(spatial='yes'), 'spatial'),
     (dict(max_iter=0), 'max_iter'), (dict(beta_max=1e-6), 'beta_max'),
     (dict(rotations='true'), 'rotations'), (dict(local_rigidity=1.5), 'local_rigidity'),
+    (dict(nuclear='both'), 'nuclear'),
 ])
 def test_invalid_parameters_raise_in_fit(params, needle):
     est = GrassmannNRSfM(**params)                           # stored unchanged
