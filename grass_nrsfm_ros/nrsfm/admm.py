@@ -393,7 +393,10 @@ Tried and NOT adopted (no general gain):
   (chosen by the check) the centred solve stays near the rigid shapes: bending orbit 0 above,
   the Kinect paper subset 0.229 (plain 0.113, rigid 0.266); it gains only on one of the six such
   cases measured (face seed 2 frames 0-29, 0.159 -> 0.054). So 'auto' keeps the plain norm with
-  rigid rotations; with Dai's (or given) ones it solves centred and, when the
+  rigid rotations, and from given shapes (the sliding window's first solve starts from the rigid
+  factorisation's R and S; centred, the streamed bending sheet 60 x 400 went 0.1766 -> 0.2458,
+  its first window 0.185 -> 0.342); with Dai's (or given) rotations and no given shapes it
+  solves centred and, when the
   centred shapes take the inextensible depths (the surface bends without stretching; the same
   test and threshold as ``inextensible='auto'``), solves again with the plain norm and goes on as
   before (bit-identical to 'plain'; the registration's second solve is plain directly). Deciding
@@ -405,13 +408,17 @@ Tried and NOT adopted (no general gain):
   1.03x, twisting orbit 3 1.04x, Torresani face 0.0165 -> 0.0175), worse than rigid 24 -> 16.
   CPU 1.05x: the plain path pays one more solve (+16-35 % on the bending kinds), the face
   windows converge sooner (-25 %).
-  NOT the default yet: with 'auto' as the default the test suite found regressions the screen
-  above did not cover. Heavy noise: the 60 x 1,500 face at r = 0.05, 0.0729 -> 0.0871 (rigid
-  0.1237). The sliding windows (pipeline, context frames and warm starts): the streamed 60 x
-  3,000 face 0.0612 -> 0.0746 while its whole-sequence solve improved 0.0433 -> 0.0361; a
-  streamed bending sheet 0.1766 -> 0.2458; the quick-start demo's streamed figure 0.183 ->
-  0.258. Also twisting shaky 3 above, and the Kinect paper subset before the rigid-rotation
-  rule. Those need understanding before 'auto' can be the default.
+  NOT the default: it is fragile to rotation errors, so noise undoes it on the faces. Face 60 x
+  1,500 seed 0, plain / centred: r = 0 0.0467 / 0.0361, r = 0.01 0.0611 / 0.0784, 0.03 0.0689 /
+  0.0895, 0.05 0.0728 / 0.0871 (rigid 0.124); seed 1: r = 0 0.0563 / 0.0497, 0.01 0.0676 /
+  0.0802, 0.05 0.1105 / 0.1264; 99 x 2,000 seed 0: r = 0 0.0455 / 0.0397, 0.01 0.0549 / 0.0645;
+  but seed 2 (99 x 2,000) stays better at every r (0.05: 0.0528 / 0.0456). At r = 0.01 on seed 0
+  Dai's rotations are 4.0 degrees off (mean); with the true ones centred wins, 0.0384 against
+  0.0440. Re-registering the rotations to the centred shapes (inextensible.register_rotations,
+  3 rounds) leaves them 4.0 degrees off (0.0765). Real tracks are never noise-free, so the
+  paper's norm stays the default until the rotations are good enough or a rule tells the
+  cases apart. The sliding windows, with the given-shapes rule: streamed bending 60 x 400
+  0.1766 either way; streamed face 60 x 1,000 0.0612 -> 0.0581.
   NOT adopted (session 8): deciding the registration on a pilot to save the second full solve on
   large P (a cold solve of 2,000 random tracks; when it refines and registers, a second pilot with
   the registered rotations, kept on the same edge-length rule; then one full solve with the kept
@@ -738,9 +745,10 @@ class GrassmannNRSfM:
                      'solved', "'auto' or 'never'"),
         'nuclear': ("'centred': the nuclear norm acts on S# less its mean row (the mean "
                     "world shape is not shrunk, only the deformations); 'plain': on S# (the "
-                    "paper); 'auto': centred, but plain with the rigid rotations or when the "
-                    "centred solve's shapes take the inextensible depths (a surface that bends "
-                    'without stretching)',
+                    "paper); 'auto': centred, but plain with the rigid rotations, from given "
+                    "shapes, or when the centred solve's shapes take the inextensible depths (a "
+                    'surface that bends without stretching); centred is fragile to noisy '
+                    'rotations (README)',
                     "'auto', 'centred' or 'plain'"),
         'power_steps': ('warm-started power iterations per ADMM iteration for spatial bases',
                         'int >= 1'),
@@ -946,7 +954,7 @@ class GrassmannNRSfM:
         report.warm_started_frames = int(known.sum()) if init.S is not None else 0
         shapes = functools.partial(self._shapes, Wn, R, init, known, scale, p,
                                    (K_s, K_t, N_s, N_t), groups, report, timer, progress)
-        report.nuclear = self._first_nuclear(nuclear, report)
+        report.nuclear = self._first_nuclear(nuclear, report, init)
         state, S_cam = shapes(report.nuclear)
         t = time.perf_counter()
         if self._wants_inextensible(p['inextensible'], P, init):
@@ -1011,13 +1019,16 @@ class GrassmannNRSfM:
         return state, from_frames(S_cam)
 
     @staticmethod
-    def _first_nuclear(nuclear, report):
+    def _first_nuclear(nuclear, report, init):
         """The norm of the first shape solve: 'auto' is centred, but plain with the rigid
-        factorisation's rotations (there the centred solve stays near the rigid shapes)."""
+        factorisation's rotations or from given shapes (the sliding window's first solve
+        starts from the rigid factorisation): the centred solve stays near its start."""
         if nuclear != 'auto':
             return nuclear
-        if report.rotation_method == 'rigid':
-            report.notes.append('nuclear norm: plain (auto; rigid rotations)')
+        why = ('rigid rotations' if report.rotation_method == 'rigid' else
+               'initial shapes given' if init.S is not None else None)
+        if why:
+            report.notes.append(f'nuclear norm: plain (auto; {why})')
             return 'plain'
         return 'centred'
 
