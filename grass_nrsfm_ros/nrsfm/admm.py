@@ -418,7 +418,19 @@ Tried and NOT adopted (no general gain):
   3 rounds) leaves them 4.0 degrees off (0.0765). Real tracks are never noise-free, so the
   paper's norm stays the default until the rotations are good enough or a rule tells the
   cases apart. The sliding windows, with the given-shapes rule: streamed bending 60 x 400
-  0.1766 either way; streamed face 60 x 1,000 0.0612 -> 0.0581.
+  0.1766 either way; streamed face 60 x 1,000 0.0612 -> 0.0581. The noise picture is mixed at
+  99 x 2,000, r = 0.01 (plain -> auto): seeds 0 / 1 worse (0.0549 -> 0.0645, 0.0639 -> 0.0769),
+  seeds 2 / 3 / 4 better (0.0522 -> 0.0409, 0.0793 -> 0.0649, 0.0843 -> 0.0250); six 30-frame
+  windows at r = 0.01: geometric mean 0.61, better on 5, worse on none.
+  Tried and NOT adopted: also leaving the 3 infinitesimal rotations of the mean shape unshrunk
+  ('centred-rotations': ``S# = 1 m^T + C Q^T Q + SVT(C (I - Q^T Q))``, ``C = H X``, ``Q`` an
+  orthonormal basis of ``w_k x m``; in the operator form ``op X`` plus a rank-3 term), so that a
+  small rotation error costs no deformation. It tolerates noise on some faces (60 x 1,500 seed 0,
+  r = 0.01 / 0.03: 0.0587 / 0.0604 against plain 0.0611 / 0.0689 and centred 0.0784 / 0.0895)
+  but not overall: as 'auto''s first norm on 61 cases (synthetic seeds 0-2, faces 0-4 clean and
+  at r = 0.01, face windows, mocap) geometric mean 0.83 against plain, better on 30, worse on 7,
+  where the centred norm gets 0.77, better on 30, worse on 4 (faces clean 0.82 vs 0.75, face 4
+  0.0741 vs 0.0338; noisy windows 0.83 vs 0.61).
   NOT adopted (session 8): deciding the registration on a pilot to save the second full solve on
   large P (a cold solve of 2,000 random tracks; when it refines and registers, a second pilot with
   the registered rotations, kept on the same edge-length rule; then one full solve with the kept
