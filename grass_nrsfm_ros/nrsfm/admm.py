@@ -421,7 +421,9 @@ Tried and NOT adopted (no general gain):
   0.1766 either way; streamed face 60 x 1,000 0.0612 -> 0.0581. The noise picture is mixed at
   99 x 2,000, r = 0.01 (plain -> auto): seeds 0 / 1 worse (0.0549 -> 0.0645, 0.0639 -> 0.0769),
   seeds 2 / 3 / 4 better (0.0522 -> 0.0409, 0.0793 -> 0.0649, 0.0843 -> 0.0250); six 30-frame
-  windows at r = 0.01: geometric mean 0.61, better on 5, worse on none.
+  windows at r = 0.01: geometric mean 0.61, better on 5, worse on none. The noise study's face
+  (99 x 5,000 seed 0, 3 repeats), plain / auto: r = 0 0.0457 / 0.0385, 0.01 0.0548 / 0.0667,
+  0.03 0.0622 / 0.0786, 0.05 0.0659 / 0.0810.
   Tried and NOT adopted: also leaving the 3 infinitesimal rotations of the mean shape unshrunk
   ('centred-rotations': ``S# = 1 m^T + C Q^T Q + SVT(C (I - Q^T Q))``, ``C = H X``, ``Q`` an
   orthonormal basis of ``w_k x m``; in the operator form ``op X`` plus a rank-3 term), so that a
