@@ -866,26 +866,14 @@ class GrassmannNRSfM:
             p[name] = _auto_or_int(name, getattr(self, name))
         K_rot = self.K_rot
         p['K_rot'] = K_rot if K_rot == 'auto' else _auto_or_int('K_rot', K_rot)
-        if self.rotations not in ROTATION_CHOICES:
-            raise InvalidInputError(f'rotations must be one of {ROTATION_CHOICES}; got '
-                                    f'{self.rotations!r}')
-        p['rotations'] = self.rotations
-        if self.inextensible not in INEXTENSIBLE_CHOICES:
-            raise InvalidInputError(f'inextensible must be one of {INEXTENSIBLE_CHOICES}; got '
-                                    f'{self.inextensible!r}')
-        p['inextensible'] = self.inextensible
-        if self.register_rotations not in REGISTRATION_CHOICES:
-            raise InvalidInputError(f'register_rotations must be one of {REGISTRATION_CHOICES}; '
-                                    f'got {self.register_rotations!r}')
-        p['register_rotations'] = self.register_rotations
-        if self.thinning not in THINNING_CHOICES:
-            raise InvalidInputError(f'thinning must be one of {THINNING_CHOICES}; got '
-                                    f'{self.thinning!r}')
-        p['thinning'] = self.thinning
-        if self.nuclear not in NUCLEAR_CHOICES:
-            raise InvalidInputError(f'nuclear must be one of {NUCLEAR_CHOICES}; got '
-                                    f'{self.nuclear!r}')
-        p['nuclear'] = self.nuclear
+        for name, choices in (('rotations', ROTATION_CHOICES),
+                              ('inextensible', INEXTENSIBLE_CHOICES),
+                              ('register_rotations', REGISTRATION_CHOICES),
+                              ('thinning', THINNING_CHOICES), ('nuclear', NUCLEAR_CHOICES)):
+            value = getattr(self, name)
+            if value not in choices:
+                raise InvalidInputError(f'{name} must be one of {choices}; got {value!r}')
+            p[name] = value
         for name in ('spatial', 'temporal'):
             value = getattr(self, name)
             if not isinstance(value, (bool, np.bool_)):
@@ -972,13 +960,13 @@ class GrassmannNRSfM:
         state, S_cam = shapes(report.nuclear)
         t = time.perf_counter()
         if self._wants_inextensible(p['inextensible'], P, init):
-            if (nuclear == 'auto' and report.nuclear == 'centred'
-                    and self._bends_inextensibly(S_cam, W, p, report)):
+            check = _inextensible_check(S_cam, W, p['inextensible'], p['random_state'])
+            if nuclear == 'auto' and report.nuclear == 'centred' and self._bends(check, report):
                 report.nuclear = 'plain'
                 state, S_cam = shapes('plain')
                 t = time.perf_counter()
-            S_cam = self._inextensible(S_cam, R, W, p['inextensible'], report,
-                                       p['random_state'])
+                check = _inextensible_check(S_cam, W, p['inextensible'], p['random_state'])
+            S_cam = self._inextensible(S_cam, R, W, p['inextensible'], report, check)
             t = timer.add('inextensible', t)
         labels = state.labels_original_order()
         if keep is not None:
@@ -1047,12 +1035,12 @@ class GrassmannNRSfM:
         return 'centred'
 
     @staticmethod
-    def _bends_inextensibly(S, W, p, report):
+    def _bends(check, report):
         """Whether the inextensible depths would be used on the centred solve's shapes
-        ``S: (3F, P)`` ('auto' nuclear norm): then the surface bends without stretching and
-        the paper's plain nuclear norm is used instead (see the module docstring)."""
-        before, after, ratio, n = _inextensible_ratio(S, W, 'auto', p['random_state'])
-        bends = p['inextensible'] == 'always' or ratio < INEXTENSIBLE_RATIO
+        (``check``: their _inextensible_check; 'auto' nuclear norm): then the surface bends
+        without stretching and the paper's plain nuclear norm is used instead (see the module
+        docstring)."""
+        before, after, ratio, n, bends = check
         report.notes.append(
             f"nuclear norm: {'plain' if bends else 'centred'} (auto; the centred solve's "
             f'edge-length variation {before:.4f} -> {after:.4f} with inextensible depths on '
@@ -1118,16 +1106,12 @@ class GrassmannNRSfM:
         return mode == 'always' or P >= INEXTENSIBLE_MIN_POINTS
 
     @staticmethod
-    def _inextensible(S, R, W, mode, report, random_state):
+    def _inextensible(S, R, W, mode, report, check):
         """``S: (3F, P)`` with inextensible depths (inextensible.refine_depth, signs then
-        re-estimated from the world shapes through ``R: (F, 3, 3)``) when ``mode`` is 'always'
-        or the depths of the sign sweeps alone cut the edge-length variation below
-        INEXTENSIBLE_RATIO of the solver's, judged on at most INEXTENSIBLE_CHECK_POINTS tracks
-        (a fixed random subset; the ratio moved by <= 0.03 between 500 and 4,000 points); the
-        decision goes to the report's notes."""
+        re-estimated from the world shapes through ``R: (F, 3, 3)``) when ``check`` (its
+        _inextensible_check) says so; the decision goes to the report's notes."""
         from .inextensible import neighbour_edges, refine_depth
-        before, after, ratio, n = _inextensible_ratio(S, W, mode, random_state)
-        used = mode == 'always' or ratio < INEXTENSIBLE_RATIO
+        before, after, ratio, n, used = check
         report.inextensible = used
         report.notes.append(
             f"inextensible depths {'used' if used else 'not used'} ({mode}): edge-length "
@@ -1219,17 +1203,19 @@ class GrassmannNRSfM:
         return R.transpose(0, 2, 1) @ cam
 
 
-def _inextensible_ratio(S, W, mode, random_state):
-    """``(before, after, after / before, tracks)``: the edge-length variation of ``S: (3F, P)``
-    and of its sign-swept inextensible depths (inextensible.refine_depth) on at most
-    INEXTENSIBLE_CHECK_POINTS tracks of ``W: (2F, P)`` (a fixed random subset; all when
-    ``mode`` is 'always')."""
+def _inextensible_check(S, W, mode, random_state):
+    """``(before, after, after / before, tracks, used)``: the edge-length variation of ``S:
+    (3F, P)`` and of its sign-swept inextensible depths (inextensible.refine_depth) on at most
+    INEXTENSIBLE_CHECK_POINTS tracks of ``W: (2F, P)`` (a fixed random subset; the ratio moved
+    by <= 0.03 between 500 and 4,000 points; all tracks when ``mode`` is 'always'), and whether
+    the depths are used: ``mode`` 'always', or the ratio below INEXTENSIBLE_RATIO."""
     from .inextensible import neighbour_edges, refine_depth
     P = W.shape[1]
     check = _check_tracks(P, random_state) if mode == 'auto' else np.arange(P)
     _, info = refine_depth(S[:, check], neighbour_edges(W[:, check]))
     before, after = info['length_variation_before'], info['length_variation_after']
-    return before, after, (after / before if before > 0 else 1.0), check.size
+    ratio = after / before if before > 0 else 1.0
+    return before, after, ratio, check.size, mode == 'always' or ratio < INEXTENSIBLE_RATIO
 
 
 def _reprojection_over_all(report, S, W):
