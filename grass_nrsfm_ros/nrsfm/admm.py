@@ -408,7 +408,8 @@ Tried and NOT adopted (no general gain):
   1.03x, twisting orbit 3 1.04x, Torresani face 0.0165 -> 0.0175), worse than rigid 24 -> 16.
   CPU 1.05x: the plain path pays one more solve (+16-35 % on the bending kinds), the face
   windows converge sooner (-25 %).
-  NOT the default: it is fragile to rotation errors, so noise undoes it on the faces. Face 60 x
+  NOT the default (session 11's reason, revised in session 12 below): it is fragile to rotation
+  errors, so noise undoes it on the faces. Face 60 x
   1,500 seed 0, plain / centred: r = 0 0.0467 / 0.0361, r = 0.01 0.0611 / 0.0784, 0.03 0.0689 /
   0.0895, 0.05 0.0728 / 0.0871 (rigid 0.124); seed 1: r = 0 0.0563 / 0.0497, 0.01 0.0676 /
   0.0802, 0.05 0.1105 / 0.1264; 99 x 2,000 seed 0: r = 0 0.0455 / 0.0397, 0.01 0.0549 / 0.0645;
@@ -789,8 +790,8 @@ class GrassmannNRSfM:
                     "world shape is not shrunk, only the deformations); 'plain': on S# (the "
                     "paper); 'auto': centred, but plain with the rigid rotations, from given "
                     "shapes, or when the centred solve's shapes take the inextensible depths (a "
-                    'surface that bends without stretching); centred is fragile to noisy '
-                    'rotations (README)',
+                    'surface that bends without stretching); under noise centred loses on such '
+                    'sheets and on some faces (README)',
                     "'auto', 'centred' or 'plain'"),
         'power_steps': ('warm-started power iterations per ADMM iteration for spatial bases',
                         'int >= 1'),
