@@ -443,7 +443,12 @@ Tried and NOT adopted (no general gain):
   the noise level (sigma from W's singular values, the Marchenko-Pastur median, recovers r to
   2 %: 0.00102 at r = 0.001; but face seed 0 is already worse at r = 0.001, 60 x 1,500 0.0465 ->
   0.0498, while 8 seeds gain at every r) and the rotations' spread (whole faces 21-30 degrees,
-  their windows 4-15, both gain; noisy sheets that lose sit at 9-16).
+  their windows 4-15, both gain; noisy sheets that lose sit at 9-16). Nor does judging the
+  centred shapes on denoised image coordinates (x, y projected onto the singular vectors above
+  the Gavish-Donoho hard threshold before the edge lengths): at r = 0.01 bending orbit 0 ratio
+  0.64, twisting orbit 0 0.66 (centred, 0.0555 -> 0.126), frames 0-29 of bending shaky 0 0.81,
+  still above INEXTENSIBLE_RATIO; the plain solves' refinement is unchanged by it (7 cases
+  within 1e-4).
   Tried and NOT adopted: also leaving the 3 infinitesimal rotations of the mean shape unshrunk
   ('centred-rotations': ``S# = 1 m^T + C Q^T Q + SVT(C (I - Q^T Q))``, ``C = H X``, ``Q`` an
   orthonormal basis of ``w_k x m``; in the operator form ``op X`` plus a rank-3 term), so that a
