@@ -60,6 +60,8 @@ class ParamSpec:
         return value
 
 
+#: values of ``output`` (LivePipeline checks them too)
+OUTPUTS = ('live', 'windows')
 #: values of ``warm_start`` and ``warm_rotations`` (SlidingWindow checks them too)
 WARM_STARTS = ('model', 'full', 'off')
 WARM_ROTATIONS = ('refine', 'fit', 'solver')
@@ -100,6 +102,22 @@ NODE_PARAMS = (
               "estimate per window), 'fit' (previous ones; new frames fitted to the previous "
               'shape: cheapest, good on dense surfaces, poor on sparse mocap).',
               choices=WARM_ROTATIONS),
+    ParamSpec('output', 'live', str,
+              "'live': every frame is reconstructed on arrival against the newest solved "
+              "window's shape model and published on points at once; each solved window's "
+              "frames follow on points/refined. 'windows': frames are published on points only "
+              'when their window is solved (the sliding-window behaviour).', choices=OUTPUTS),
+    ParamSpec('mapping_tracks', 2000, int,
+              'Most tracks a window is solved on (a fixed subset by track id); the others are '
+              'filled in from their neighbours. 0: all tracks.', range=(0, 10000000)),
+    ParamSpec('tracking_prior', 0.0, float,
+              "Pull of each tracked frame's shape coefficients towards the previous frame's "
+              '(relative to the data term); 0: none.', range=(0.0, 1e6)),
+    ParamSpec('residual_limit', 3.0, float,
+              'A tracked frame whose reprojection residual exceeds this many times the median '
+              "of the last 30 tracked frames' is still published, and the next window is closed "
+              'early for a fresh model.',
+              range=(1.0001, 1e6)),
     ParamSpec('align_windows', True, bool,
               "Flip each window's depth to agree with the previous window on the overlap, so "
               'published clouds keep one orientation over time.'),
@@ -256,20 +274,25 @@ def solver_kwargs(config):
 def window_kwargs(config):
     """SlidingWindow's keyword arguments from a config dict."""
     keys = ('window_size', 'window_stride', 'min_tracks', 'warm_start', 'align_windows',
-            'context_frames', 'warm_rotations', 'key_frames')
+            'context_frames', 'warm_rotations', 'key_frames', 'mapping_tracks')
     return {k: config[k] for k in keys if k in config}
 
 
 def make_pipeline(config, solver_factory=None, **options):
-    """The :class:`~grass_nrsfm_ros.pipeline.SlidingWindow` that ``config`` describes (a dict
+    """The :class:`~grass_nrsfm_ros.live.LivePipeline` (over a
+    :class:`~grass_nrsfm_ros.pipeline.SlidingWindow`) that ``config`` describes (a dict
     of parameters as from :func:`load_config` or the node's declarations; absent keys take
     their defaults). ``solver_factory`` replaces ``GrassmannNRSfM(**solver parameters)``;
     ``options`` (e.g. ``warm_start_class``) go to SlidingWindow as they are."""
+    from grass_nrsfm_ros.live import LivePipeline
     from grass_nrsfm_ros.pipeline import default_solver_factory, SlidingWindow
 
     factory = solver_factory or default_solver_factory(**solver_kwargs(config))
-    return SlidingWindow(factory, metres_per_pixel=config.get('metres_per_pixel', 1.0),
-                         **window_kwargs(config), **options)
+    windows = SlidingWindow(factory, metres_per_pixel=config.get('metres_per_pixel', 1.0),
+                            **window_kwargs(config), **options)
+    return LivePipeline(windows, output=config.get('output', 'live'),
+                        temporal_prior=config.get('tracking_prior', 0.0),
+                        residual_limit=config.get('residual_limit', 3.0))
 
 
 def render_yaml():
