@@ -17,7 +17,7 @@ and numpy: no ROS import.
   solved (the sliding-window behaviour, for comparison).
 
 When a frame's tracking residual exceeds ``residual_limit`` times the median of the last
-frames' the frame is still published, and the next window is closed early (a fresh model is wanted).
+frames' the frame is still published, and the next window is closed early (a fresh model).
 Offline, solving each window as it closes makes the output reproducible: the same input gives
 the same ``points`` and ``points/refined``.
 

@@ -9,13 +9,9 @@ one worker thread for solves (mapping), publishing, logging, recording.
 
 Threading: a SingleThreadedExecutor runs the input subscription (which tracks and publishes
 each frame at once) and the housekeeping (frames stay in order); a closed window is handed to
-one worker thread and the callback returns at once. One executor thread, not a MultiThreadedExecutor: under load the solver thread holds the
-GIL most of the time, and every hand-off between executor threads waits for it again (measured
-at 30 Hz, 30k points, a busy 2-core machine: the multi-threaded executor fell 3.3 s behind and
-its depth-100 input history overwrote 12-90 of 600 frames; one thread kept up, 0.1 s behind).
-While a solve runs, newer windows replace the one waiting (counted as dropped windows): the
-node skips to the newest window instead of queueing, and the pipeline still publishes every
-frame that window covers.
+one worker thread (the mapping) and the callback returns at once. One executor thread, not a
+MultiThreadedExecutor (docs/decisions: the node's executor). While a solve runs, newer windows
+replace the one waiting (counted as dropped windows): the mapping skips to the newest window.
 
 Start: ``ros2 run grass_nrsfm_ros node --ros-args ...``, ``grass-nrsfm node --ros-args ...``
 or ``python -m grass_nrsfm_ros.node --ros-args ...``.
