@@ -152,7 +152,8 @@ class ReconstructionNode(Node):
         self.recorder = self._open_recorder(config['record_path'])
         self.get_logger().info(
             f'reconstructing {self.tracks_sub.topic_name} -> {self.points_pub.topic_name}: '
-            f'window {self.pipeline.window_size}, stride {self.pipeline.window_stride}')
+            f'{self.pipeline.output} output, window {self.pipeline.windows.window_size}, '
+            f'stride {self.pipeline.windows.window_stride}')
 
     # -- configuration ------------------------------------------------------------------------
     def _declare_parameters(self):
@@ -343,6 +344,8 @@ class ReconstructionNode(Node):
                 'mapping backlog': int(self._busy) + int(self._pending is not None),
                 'frames tracked': live.stats['tracked'],
                 'frames refined': live.stats['refined'],
+                'frames not refined': live.windows.stats['frames_lost'],
+                'frames awaiting refinement': live.pending_frames,
                 'fresh windows requested': live.stats['fresh_windows'],
                 'first model after frames': '' if live.stats['first_model_after'] is None
                 else live.stats['first_model_after']}
@@ -357,8 +360,8 @@ class ReconstructionNode(Node):
                   **self._last_solve, 'messages received': self._counts['messages'],
                   'dropped messages': self._counts['dropped_messages'],
                   'dropped windows': self._counts['dropped_windows'],
-                  ('frames not refined' if live else 'frames lost'): stats['frames_lost'],
-                  'frames pending': self.pipeline.pending_frames,
+                  'frames lost': 0 if live else stats['frames_lost'],
+                  'frames pending': 0 if live else self.pipeline.pending_frames,
                   'sequences': stats['resets'] + 1,
                   'windows not solved': self._counts['solve_errors'],
                   'solver busy': self._busy,

@@ -44,6 +44,10 @@ class Feeder:
         self.points_sub = self.node.create_subscription(
             PointCloud2, 'points', self.points.append if keep_points else self._count_point,
             points_depth)
+        self.refined = []
+        self.node.create_subscription(
+            PointCloud2, 'points/refined',
+            self.refined.append if keep_points else (lambda msg: None), points_depth)
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 10)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)

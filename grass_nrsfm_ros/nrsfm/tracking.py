@@ -28,8 +28,10 @@ from scipy.spatial import cKDTree
 
 #: modes kept: the fewest whose energy reaches this share of the deviations' energy
 MODE_ENERGY = 0.99
-#: and never more than this many
+#: and never more than this many, nor any whose RMS over the frames is below this share of
+#: the mean shape's norm (a rigid solution has no modes)
 MAX_MODES = 10
+MODE_FLOOR = 1e-6
 #: alternations of rotation and coefficients per frame, Gauss-Newton steps per rotation fit
 ALTERNATIONS = 4
 GN_STEPS = 2
@@ -80,7 +82,8 @@ def build_model(S, R, ids, stamps, *, energy=MODE_ENERGY, max_modes=MAX_MODES):
     D = (X - mean).reshape(F, 3 * P)
     _, s, Vt = np.linalg.svd(D, full_matrices=False)
     share = np.cumsum(s ** 2) / max(float(np.sum(s ** 2)), 1e-300)
-    rank = int(min(np.searchsorted(share, energy) + 1, max_modes, max(F - 1, 0), s.size))
+    rank = int(min(np.searchsorted(share, energy) + 1, max_modes, max(F - 1, 0),
+                   np.sum(s > MODE_FLOOR * np.linalg.norm(mean) * np.sqrt(F))))
     modes = Vt[:rank].reshape(rank, 3, P)
     coefficients = D @ Vt[:rank].T
     return ShapeModel(np.asarray(ids), mean, modes, np.asarray(stamps, dtype=np.int64),
