@@ -17,7 +17,7 @@ and numpy: no ROS import.
   solved (the sliding-window behaviour, for comparison).
 
 When a frame's tracking residual exceeds ``residual_limit`` times the median of the last
-frames' the frame is still published, and the next window is closed early (a fresh model).
+frames', the frame is still published, and the next window is closed early (a fresh model).
 Offline, solving each window as it closes makes the output reproducible: the same input gives
 the same ``points`` and ``points/refined``.
 
@@ -92,6 +92,7 @@ class LivePipeline:
         self.temporal_prior, self.residual_limit = float(temporal_prior), float(residual_limit)
         self._tracker = None
         self._residuals = deque(maxlen=RESIDUAL_BASELINE)   # of the last tracked frames
+        self._requested = False         # a fresh window asked for since the current model
         self._bootstrap = []            # Frames of the sequence while it has no model
         self._bootstrap_depth = {}      # stamp -> (ids, z) published before the first model
         self._waiting = None            # (sequence, ShapeModel) for the next frame
@@ -132,6 +133,7 @@ class LivePipeline:
         if waiting is None or waiting[0] != self._sequence:
             return
         _, model = waiting
+        self._requested = False
         if self.has_model:
             self._tracker.swap(model)
             return
@@ -151,13 +153,15 @@ class LivePipeline:
         if self._surprising(tracked.residual):
             self.windows.request_window()
             self.stats['fresh_windows'] += 1
+            self._requested = True
         self._residuals.append(tracked.residual)
         return self._result(frame, tracked.ids, tracked.xyz)
 
     def _surprising(self, residual):
         """True if ``residual`` exceeds ``residual_limit`` times the median of the last
-        RESIDUAL_BASELINE tracked frames' (once that many are known)."""
-        if len(self._residuals) < RESIDUAL_BASELINE:
+        RESIDUAL_BASELINE tracked frames', and no fresh window has been asked for since the
+        current model arrived."""
+        if self._requested or len(self._residuals) < RESIDUAL_BASELINE:
             return False
         return residual > self.residual_limit * max(float(np.median(self._residuals)), 1e-9)
 

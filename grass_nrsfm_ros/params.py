@@ -116,7 +116,7 @@ NODE_PARAMS = (
     ParamSpec('residual_limit', 3.0, float,
               'A tracked frame whose reprojection residual exceeds this many times the median '
               "of the last 30 tracked frames' is still published, and the next window is closed "
-              'early for a fresh model.',
+              'early for a fresh model (once per model).',
               range=(1.0001, 1e6)),
     ParamSpec('align_windows', True, bool,
               "Flip each window's depth to agree with the previous window on the overlap, so "
