@@ -574,7 +574,7 @@ class SlidingWindow:
             out[use] = fitted[use]
             return out
         from grass_nrsfm_ros.nrsfm.rotation import estimate_rotations
-        from grass_nrsfm_ros.nrsfm.admm import align_rotations
+        from grass_nrsfm_ros.nrsfm.rotation import align_rotations
         est = estimate_rotations(Wc).R
         probe = np.concatenate([est, np.eye(3)[None]])     # the last row yields the global Q
         aligned = align_rotations(probe, np.concatenate([R, np.eye(3)[None]]),

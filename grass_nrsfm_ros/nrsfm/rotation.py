@@ -255,6 +255,25 @@ def step_angles(R):
     return np.degrees(np.arccos(cosang))
 
 
+def align_rotations(R_est, R_known, known):
+    """Align estimated rotations ``(F, 3, 3)`` to given ones on the ``known: (F,)`` frames.
+
+    Finds the world rotation Q (and whether to use the orthographic depth-flip twin
+    ``D R D``, D = diag(1, 1, -1)) minimising ``sum_known ||R_est_f Q - R_known_f||^2``; returns
+    the aligned estimates with the known frames replaced by the given rotations.
+    """
+    D = np.diag([1.0, 1.0, -1.0])
+    best, best_err = None, np.inf
+    for cand in (R_est, D @ R_est @ D):
+        M = np.einsum('fji,fjk->ik', cand[known], R_known[known])
+        Q = nearest_rotation(M)
+        err = np.linalg.norm(cand[known] @ Q - R_known[known])
+        if err < best_err:
+            best, best_err = cand @ Q, err
+    best[known] = R_known[known]
+    return best
+
+
 def rotation_spread(R):
     """Mean angle (degrees) of the rotations ``R: (F, 3, 3)`` from their mean (the rotation
     nearest to their average): how far the camera turns over the sequence."""
