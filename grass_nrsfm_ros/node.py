@@ -41,7 +41,7 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header
 
 from grass_nrsfm_ros import cloud, params
-from grass_nrsfm_ros.pipeline import FrameError, WindowError
+from grass_nrsfm_ros.pipeline import FrameError, make_pipeline, WindowError
 
 POINTCLOUD2 = 'sensor_msgs/msg/PointCloud2'
 LOG_PERIOD_S = 10.0          # the same kind of problem is logged at most once per period
@@ -119,9 +119,8 @@ class ReconstructionNode(Node):
         super().__init__(params.NODE_NAME, **node_kwargs)
         config = self._declare_parameters()
         self._log = RateLimitedLog(self.get_logger())
-        self._configure_blas(config['blas_threads'])
-        self.pipeline = params.make_pipeline(config, solver_factory,
-                                             warm_start_class=warm_start_class)
+        self._configure_blas()
+        self.pipeline = make_pipeline(config, solver_factory, warm_start_class=warm_start_class)
         self._frame_id = config['frame_id']
         self._counts = dict(messages=0, dropped_messages=0, dropped_windows=0, solve_errors=0)
         self._last_solve = {}
@@ -167,10 +166,11 @@ class ReconstructionNode(Node):
                 self._frame_id = str(p.value)
         return SetParametersResult(successful=True)
 
-    def _configure_blas(self, threads):
-        """Cap BLAS/OpenMP threads so one core stays free for the executor."""
+    def _configure_blas(self):
+        """Cap BLAS/OpenMP threads at all cores but one, so one stays free for the executor
+        (the solver itself runs BLAS on one thread)."""
         from threadpoolctl import threadpool_limits
-        threads = threads or max(1, (os.cpu_count() or 2) - 1)
+        threads = max(1, (os.cpu_count() or 2) - 1)
         self._blas_limits = threadpool_limits(limits=threads)
 
     def _open_recorder(self, path):

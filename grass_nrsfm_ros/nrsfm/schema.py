@@ -91,9 +91,12 @@ class Param:
         elif self.range is not None:
             low, high = self.range
             low_op = '>' if self.open_low else '>='
-            bounded = high not in (INT_MAX, FLOAT_MAX)
-            parts.append(f'{kind.__name__} in {"(" if self.open_low else "["}{low:g}, {high:g}]'
-                         if bounded else f'{kind.__name__} {low_op} {low:g}')
+            low_text, high_text = (f'{x:g}' if kind is float else str(x) for x in (low, high))
+            if high in (INT_MAX, FLOAT_MAX):
+                parts.append(f'{kind.__name__} {low_op} {low_text}')
+            else:
+                parts.append(f'{kind.__name__} in {"(" if self.open_low else "["}{low_text}, '
+                             f'{high_text}]')
         else:
             parts.append(kind.__name__)
         if self.nullable:
