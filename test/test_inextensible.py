@@ -8,12 +8,12 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from grass_nrsfm_ros.nrsfm import GrassmannNRSfM, InvalidInputError, WarmStart
-from grass_nrsfm_ros.nrsfm.admm import REGISTRATION_MIN_SPREAD
 from grass_nrsfm_ros.nrsfm.inextensible import (length_variation, neighbour_edges, refine_depth,
                                                 register_rotations)
 from grass_nrsfm_ros.nrsfm.measurement import as_frames, from_frames
 from grass_nrsfm_ros.nrsfm.metrics import e3d, rotation_error
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation, rotation_spread
+from grass_nrsfm_ros.nrsfm.schema import REGISTRATION_MIN_SPREAD
 from grass_nrsfm_ros.nrsfm.synthetic import make_sequence
 
 
