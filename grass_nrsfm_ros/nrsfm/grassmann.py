@@ -17,6 +17,7 @@ Functions (shapes in their docstrings): :func:`projection_kernel`, :func:`c_upda
 :func:`contiguous_blocks`, :func:`move_block_boundaries`.
 """
 import numpy as np
+from sklearn.cluster import KMeans, MiniBatchKMeans
 
 
 def projection_kernel(cross, sizes, delta=1e-8):
@@ -145,7 +146,6 @@ def initial_groups(S, K, random_state=0, dims=20):
 
     Returns labels ``(P,)`` in ``0..K-1`` (every label used). MiniBatchKMeans above 20k points.
     """
-    from sklearn.cluster import KMeans, MiniBatchKMeans
     P = S.shape[1]
     if K <= 1:
         return np.zeros(P, dtype=np.int64)

@@ -68,7 +68,7 @@ def _svd_via_gram(Wn):
     return U, d, Vt
 
 
-def _normalised_svd(W):
+def normalised_svd(W):
     """Centre and scale ``W: (2F, P)``.
 
     Returns ``(U (2F, r), d (r,), Vt (r, P), Wn (2F, P), scale)`` with signs fixed and
@@ -300,7 +300,7 @@ def _world_shape(R, Wn):
 
 def _rigid(W):
     """Tomasi-Kanade. Returns ``(R, S camera frame in W's units, info dict)``."""
-    U, d, Vt, Wn, scale = _normalised_svd(W)
+    U, d, Vt, Wn, scale = normalised_svd(W)
     F = Wn.shape[0] // 2
     info = {'energy': float((d[:3] ** 2).sum() / (d ** 2).sum())}
     rank = int((d > RANK_TOL * d[0]).sum())
@@ -364,7 +364,7 @@ def rotations_for_rank(W, K, *, random_state=0, n_starts=N_STARTS, warm=None, _s
     factorisation uses rank r and the null space is taken numerically.
     Returns ``(R: (F, 3, 3), G: (r, 3), diagnostics dict)``. Raises ValueError if infeasible.
     """
-    U, d, Vt, Wn, _ = _svd if _svd is not None else _normalised_svd(W)
+    U, d, Vt, Wn, _ = _svd if _svd is not None else normalised_svd(W)
     n = min(3 * K, _numerical_rank(d))
     if n <= 3 * K - 3 or n < 3:
         raise ValueError(f'W has numerical rank {_numerical_rank(d)} <= 3(K-1) = {3 * K - 3}')
@@ -410,7 +410,7 @@ def estimate_rotations(W, K='auto', *, candidates=DEFAULT_CANDIDATES, random_sta
     :func:`choose_rank`. Degenerate input falls back to :func:`rigid_factorisation` with the
     reason in ``scores['fallback']``. Returns a :class:`RotationEstimate`.
     """
-    svd = _normalised_svd(W)
+    svd = normalised_svd(W)
     F, P = svd[3].shape[0] // 2, svd[3].shape[1]
     if K == 'auto':
         wanted = sorted(k for k in set(int(c) for c in candidates) if k >= 1)
