@@ -55,7 +55,8 @@ class SolveCancelled(Exception):
 
 
 def descriptor(spec):
-    """ParameterDescriptor for a :class:`params.ParamSpec` (range, read-only, typing)."""
+    """ParameterDescriptor for a :class:`grass_nrsfm_ros.nrsfm.schema.Param` (range, read-only,
+    typing)."""
     d = ParameterDescriptor(description=spec.description, read_only=spec.read_only,
                             dynamic_typing=spec.type is None)
     if spec.range is not None and spec.type is int:
