@@ -67,10 +67,9 @@ class GrassmannNRSfM:
             problem = Problem.from_tracks(W, init)
             report = SolverReport()
             t = time.perf_counter()
-            asked = rotations.method(problem, params)
             report.stages.append(rotations.NAME)
             R = rotations.run(problem, params, report)
-            if rotation_check.applies(problem, asked):
+            if rotation_check.applies(problem, params):
                 report.stages.append(rotation_check.NAME)
                 R = rotation_check.run(problem, R, params, report, shape_pass)
             timer.add('rotation', t)

@@ -9,6 +9,7 @@ Report: ``rotation_checked``, ``rotation_method``, ``K_rot``, a note with both s
 """
 import numpy as np
 
+from . import rotations
 from ..measurement import as_frames
 from ..problem import Problem, SolverReport, WarmStart
 from ..rotation import rigid_factorisation
@@ -22,9 +23,9 @@ CHECK_PARAMS = {'rotations': 'dai', 'spatial': False, 'temporal': False,
                 'inextensible': 'never', 'nuclear': 'plain'}
 
 
-def applies(problem, method):
-    """'auto' asked (``method``: what the rotations stage was asked for), no rotations given."""
-    return method == 'auto' and problem.init.R is None
+def applies(problem, params):
+    """'auto' asked (by the warm start or the parameter), no rotations given."""
+    return rotations.method(problem, params) == 'auto' and problem.init.R is None
 
 
 def score(problem, R, params, report, solve_shapes, name):
