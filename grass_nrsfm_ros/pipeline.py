@@ -564,11 +564,11 @@ class SlidingWindow:
         if self.warm_rotations == 'solver' or known.all():
             return R
         if self.warm_rotations == 'fit':
-            from grass_nrsfm_ros.nrsfm.rotation import _rotations_from_rows
+            from grass_nrsfm_ros.nrsfm.rotation import rotations_from_rows
             S = S - S.mean(axis=2, keepdims=True)
             X = R.transpose(0, 2, 1) @ S                     # world shapes of the source frames
             M = as_frames(Wc, 2) @ np.linalg.pinv(X)         # (F, 2, 3) camera rows
-            fitted, ok = _rotations_from_rows(M)
+            fitted, ok = rotations_from_rows(M)
             out = R.copy()
             use = ~known & ok
             out[use] = fitted[use]

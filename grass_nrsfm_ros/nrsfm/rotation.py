@@ -217,7 +217,7 @@ def _refine(G0, Pi):
 
 # ----------------------------------------------------------------------------- rotations
 
-def _rotations_from_rows(M):
+def rotations_from_rows(M):
     """``M: (F, 2, 3)`` camera rows (any scale) -> ``(R: (F, 3, 3), ok: (F,) bool)``.
 
     Each 2x3 block goes to the nearest matrix with orthonormal rows; the third row is their
@@ -284,7 +284,7 @@ def rotation_spread(R):
 
 def _rotations_from_triple(Pi, G):
     """Rotations from ``Pi: (2F, n)`` and one column triple ``G: (n, 3)``."""
-    R, ok = _rotations_from_rows(as_frames(Pi @ G, 2))
+    R, ok = rotations_from_rows(as_frames(Pi @ G, 2))
     return sign_continuity(R), ok
 
 
