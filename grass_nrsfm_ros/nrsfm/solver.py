@@ -60,7 +60,10 @@ class GrassmannNRSfM:
     # the chain ---------------------------------------------------------------------------------
     def fit(self, W, init=None, progress=None):
         """Reconstruct ``W: (2F, P)``. ``init``: optional :class:`WarmStart`; ``progress``:
-        optional ``callback(iteration, report)`` called after every ADMM iteration."""
+        optional ``callback(iteration, report)`` called after every ADMM iteration.
+
+        The chain: rotations -> rotation check -> shape pass (thinning -> ADMM -> refinement
+        -> fill) -> registration (the shape pass again with registered rotations)."""
         params = validate_solver(self.get_params())
         with threadpool_limits(limits=BLAS_THREADS, user_api='blas'):
             start, timer = time.perf_counter(), Timer()
