@@ -201,9 +201,17 @@ class ReconstructionNode(Node):
         unseen) and the reliability ``input_reliability`` asks for (see params.py). A
         ``qos_overrides`` reliability pins it (then 'auto' adapts no more)."""
         self._input_mode = reliability
+        self._input_pinned = self._reliability_overridden()
         asked = self._wanted_reliability() if reliability == 'auto' else RELIABILITY[reliability]
         self._subscribe_tracks(asked, overrides)
-        self._input_pinned = self.tracks_sub.qos_profile.reliability != asked
+
+    def _reliability_overridden(self):
+        """Whether a ``qos_overrides.<tracks>.subscription.reliability`` parameter was given
+        (declared for a moment with an empty default; the override, if any, replaces it)."""
+        name = f"qos_overrides.{self.resolve_topic_name('tracks')}.subscription.reliability"
+        given = self.declare_parameter(name, '', ParameterDescriptor(dynamic_typing=True)).value
+        self.undeclare_parameter(name)
+        return given != ''
 
     def _subscribe_tracks(self, reliability, overrides=None):
         """(Re)create the raw tracks subscription: the CDR bytes are recorded as received,

@@ -160,12 +160,12 @@ def stop(proc, sig=signal.SIGINT, timeout=15):
 @contextmanager
 def node_with_feeder(env, log, args=(), *, launch=RIGID_LAUNCH,
                      preexec_fn=None, connect_timeout=30, keep_points=True,
-                     points_depth=POINTS_DEPTH, tracks_qos=10):
+                     points_depth=POINTS_DEPTH, tracks_qos=10, namespace=None):
     """Start the node (``launch``: Python code run with ``-c`` from test/, extra ROS ``args``)
     in a fresh namespace, its output in ``log``; yield ``(process, feeder)`` once they are
     connected; stop it with SIGINT at the end. ``tracks_qos``: our tracks writer's QoS (a
-    depth or a profile)."""
-    namespace = unique_namespace()
+    depth or a profile); ``namespace``: instead of a fresh one."""
+    namespace = namespace or unique_namespace()
     if launch == RIGID_LAUNCH:
         # the rigid stand-in is an iterative ALS in Python: on window + 60 context frames it
         # can take seconds per window and the node then skips windows; these tests are about

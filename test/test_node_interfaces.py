@@ -16,7 +16,7 @@ from rclpy.qos import qos_profile_sensor_data, QoSProfile, ReliabilityPolicy  # 
 from std_msgs.msg import Header  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 from visualization_msgs.msg import Marker  # noqa: E402
-from rosutil import node_with_feeder  # noqa: E402, I100
+from rosutil import node_with_feeder, unique_namespace  # noqa: E402, I100
 from test_node import good_frames, publish_at_30hz, stamp_of  # noqa: E402
 from test_pipeline import make_sequence  # noqa: E402
 
@@ -61,6 +61,19 @@ def test_trackers_of_either_reliability_are_heard(ros_env, tmp_path, mode, track
         assert received >= 0.95 * 90
         assert feeder.wait_for(lambda: len(feeder.points) >= counts['frames published'], 10)
         assert counts['frames published'] >= 80
+
+
+def test_qos_overrides_pin_the_input_reliability(ros_env, tmp_path):
+    """An explicit qos_overrides reliability wins over input_reliability (and 'auto' then
+    stops adapting): a best-effort override hears the reliable tracker best effort."""
+    namespace = unique_namespace()
+    override = f'qos_overrides.{namespace}/tracks.subscription.reliability:=best_effort'
+    with node_with_feeder(ros_env, tmp_path / 'node.log', ['-p', override],
+                          namespace=namespace, tracks_qos=RELIABLE_10) as (proc, feeder):
+        time.sleep(2.5)                        # past two adaptation checks of 'auto'
+        since = time.monotonic()
+        assert feeder.wait_for(lambda: feeder.node_reports(since), 5)
+        assert feeder.node_reports(since)['input reliability'] == 'best_effort'
 
 
 def test_reset_drops_buffer_and_model_and_starts_a_new_sequence(ros_env, tmp_path):
