@@ -262,7 +262,8 @@ class ReconstructionNode(Node):
         response.success = True
         response.message = (
             f'reset: dropped {dropped["frames"]} buffered frames, '
-            f'{0 if waiting is None else waiting.n_frames} frames of a waiting window, '
+            f'{"no window" if waiting is None else f"a {waiting.n_frames}-frame window"} '
+            'waiting, '
             f'{"the model" if dropped["model"] else "no model"} of sequence {sequence}; '
             f'sequence {sequence + 1} starts with the next frame')
         self._last_reset = response.message
