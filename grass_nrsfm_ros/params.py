@@ -63,6 +63,8 @@ class ParamSpec:
 #: values of ``warm_start`` and ``warm_rotations`` (SlidingWindow checks them too)
 WARM_STARTS = ('model', 'full', 'off')
 WARM_ROTATIONS = ('refine', 'fit', 'solver')
+#: values of ``input_reliability``
+INPUT_RELIABILITIES = ('auto', 'best_effort', 'reliable')
 
 NODE_PARAMS = (
     ParamSpec('window_size', 30, int, 'Frames per sliding window solved together.',
@@ -115,6 +117,27 @@ NODE_PARAMS = (
     ParamSpec('blas_threads', 0, int,
               'BLAS/OpenMP threads for the solver; 0: all cores but one (at least 1).',
               range=(0, 1024)),
+    ParamSpec('input_reliability', 'auto', str,
+              "Reliability of the tracks subscription. 'auto' (default): reliable while every "
+              'publisher found offers reliable, best effort otherwise and while none is found '
+              '(sensor data, REP 2003), adapted as publishers come and go; '
+              "'best_effort': hears every publisher, each connection best effort; "
+              "'reliable': hears reliable publishers only. A qos_overrides reliability for "
+              'the tracks subscription wins over all three.', choices=INPUT_RELIABILITIES),
+    ParamSpec('expected_rate', 30.0, float,
+              'Expected tracks and points rate (Hz) for the frequency statuses in /diagnostics '
+              '(WARN outside it, widened by rate_tolerance); 0: rates reported, not checked.',
+              range=(0.0, 1e6)),
+    ParamSpec('rate_tolerance', 0.1, float,
+              'Fraction by which a measured rate may miss expected_rate before a WARN.',
+              range=(0.0, 1.0)),
+    ParamSpec('publish_mesh', False, bool,
+              'Also publish a visualization_msgs/Marker TRIANGLE_LIST on mesh: the newest '
+              "frame of each solved window, triangulated (Delaunay) on the track set's first "
+              'frame in the image plane and coloured by depth.'),
+    ParamSpec('mesh_max_edge', 3.0, float,
+              'Triangles whose longest edge (in the image) exceeds this many times the median '
+              'edge are left out of the mesh (gaps, convex hull).', range=(1.0, 1e6)),
 )
 
 
