@@ -30,6 +30,8 @@ README_END = '<!-- /params-table -->'
 #: values of ``warm_start`` and ``warm_rotations``
 WARM_STARTS = ('model', 'full', 'off')
 WARM_ROTATIONS = ('refine', 'fit', 'solver')
+#: values of ``input_reliability``
+INPUT_RELIABILITIES = ('auto', 'best_effort', 'reliable')
 #: the fewest frames a window can have
 MIN_WINDOW_FRAMES = 3
 
@@ -76,6 +78,27 @@ NODE_PARAMS = (
     Param('record_path', '', str,
           'rosbag2 (MCAP) directory recording the input tracks and output points; empty: '
           'off.'),
+    Param('input_reliability', 'auto', str,
+          "Reliability of the tracks subscription. 'auto': reliable while every publisher "
+          'found offers reliable, best effort otherwise and while none is found (sensor '
+          "data, REP 2003), adapted as publishers come and go; 'best_effort': hears every "
+          "publisher, each connection best effort; 'reliable': hears reliable publishers "
+          'only. A qos_overrides reliability for the tracks subscription wins over all three.',
+          choices=INPUT_RELIABILITIES),
+    Param('expected_rate', 30.0, float,
+          'Expected tracks and points rate (Hz) for the frequency statuses in /diagnostics '
+          '(WARN outside it, widened by rate_tolerance); 0: rates reported, not checked.',
+          range=(0.0, 1e6)),
+    Param('rate_tolerance', 0.1, float,
+          'Fraction by which a measured rate may miss expected_rate before a WARN.',
+          range=(0.0, 1.0)),
+    Param('publish_mesh', False, bool,
+          'Also publish a visualization_msgs/Marker TRIANGLE_LIST on mesh: the newest frame of '
+          "each solved window, triangulated (Delaunay) on the track set's first frame in the "
+          'image plane and coloured by depth.'),
+    Param('mesh_max_edge', 3.0, float,
+          'Triangles whose longest edge (in the image) exceeds this many times the median edge '
+          'are left out of the mesh (gaps, convex hull).', range=(1.0, 1e6)),
 )
 #: the parameters SlidingWindow takes
 WINDOW_KEYS = ('window_size', 'window_stride', 'min_tracks', 'warm_start', 'align_windows',
@@ -219,18 +242,26 @@ def render_yaml():
     return '\n'.join(lines) + '\n'
 
 
+def _summary(description):
+    """The first sentence of a description."""
+    head, dot, _ = description.partition('. ')
+    return head + '.' if dot else description
+
+
 def render_table():
-    """The README's parameter tables (Markdown), one per section."""
-    out = []
-    for title, _, group in _sections():
-        out += [f'**{title}**', '', '| parameter | default | values | description |',
-                '|---|---|---|---|']
-        for p in group:
-            cells = (f'`{p.name}`', f'`{_yaml_value(p.default)}`', p.constraint,
-                     p.description)
-            out.append('| ' + ' | '.join(c.replace('|', '\\|') for c in cells) + ' |')
-        out.append('')
-    return '\n'.join(out)
+    """The README's parameter table (Markdown): a row per node parameter, a row per solver
+    group naming its parameters (config/params.yaml describes each)."""
+    def row(*cells):
+        return '| ' + ' | '.join(c.replace('|', '\\|') for c in cells) + ' |'
+    out = [row('parameter', 'default', 'values', 'meaning'), '| --- | --- | --- | --- |']
+    sections = _sections()
+    for p in sections[0][2]:
+        out.append(row(f'`{p.name}`', f'`{_yaml_value(p.default)}`', p.constraint,
+                       _summary(p.description)))
+    for title, _, group in sections[1:]:
+        names = ', '.join(f'`{p.name[len(SOLVER_PREFIX):]}`' for p in group)
+        out.append(row('`solver.*`', '', '', f'{title}: {names}'))
+    return '\n'.join(out) + '\n'
 
 
 def readme_with_table(text):

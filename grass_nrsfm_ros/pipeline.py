@@ -295,6 +295,25 @@ class SlidingWindow:
             return []
         return [self._emit(frames)]
 
+    def reset(self):
+        """Drop the buffered frames (counted lost unless already in a window) and the model
+        (the previous solution, the rotation check); the next frame starts a new sequence.
+        Frames of windows already closed stay pending until their solve or a newer sequence's
+        publication accounts for them. Returns ``{'frames': buffered frames dropped, 'model':
+        whether there was one}``."""
+        fresh = [f for f in self._frames
+                 if self._emitted_until is None or f.stamp_ns > self._emitted_until]
+        self._count('frames_lost', len(fresh))
+        had_model = self._previous is not None
+        self._frames = []
+        self._history.clear()
+        self._keys = KeyFrames(self.key_frames)
+        self._previous, self._rotation_check = None, None
+        self._sequence += 1
+        self._emitted_until = None
+        self._count('resets')
+        return {'frames': len(fresh), 'model': had_model}
+
     def _checked_frame(self, stamp_ns, ids, uv, frame_id):
         ids = np.asarray(ids)
         uv = np.asarray(uv, dtype=np.float64)

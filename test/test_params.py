@@ -104,7 +104,8 @@ def test_readme_table_rewrite(tmp_path):
     path.write_text(f'# x\n{params.README_BEGIN}\nstale table\n{params.README_END}\nafter\n')
     params.main(['--readme', str(path)])
     text = path.read_text()
-    assert 'stale table' not in text and '| `solver.gamma` | `0.001` | float >= 0 |' in text
+    assert 'stale table' not in text and '| `window_size` | `30` | int in [3, 100000] |' in text
+    assert '`gamma`, `smoothness`' in text and 'research switches' in text
     assert text.endswith(f'{params.README_END}\nafter\n')
     with pytest.raises(ValueError, match='markers'):
         params.readme_with_table('no markers')

@@ -63,12 +63,14 @@ def streaming(seq, tracks_bag, points_bag):
 
 
 def picture(result, seq, path):
+    from grass_nrsfm_ros.commands.render import renderer
     from grass_nrsfm_ros.nrsfm.metrics import procrustes_align
-    from grass_nrsfm_ros.render import frame_figure, write_png
 
+    render = renderer()
     last = slice(3 * (seq.n_frames - 1), 3 * seq.n_frames)
     estimate, truth = procrustes_align(result.S[last], seq.S[last])
-    write_png(path, frame_figure(estimate, truth, title=f'{seq.name}: last frame'))
+    render.write_png(path, render.frame_figure(estimate, truth,
+                                               title=f'{seq.name}: last frame'))
 
 
 def run(args):
