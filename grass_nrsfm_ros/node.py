@@ -46,7 +46,7 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from grass_nrsfm_ros import cloud, mesh, params, qos as offered_qos, rates
-from grass_nrsfm_ros.pipeline import FrameError, WindowError
+from grass_nrsfm_ros.pipeline import FrameError, make_pipeline, WindowError
 
 POINTCLOUD2 = 'sensor_msgs/msg/PointCloud2'
 LOG_PERIOD_S = 10.0          # the same kind of problem is logged at most once per period
@@ -62,7 +62,8 @@ class SolveCancelled(Exception):
 
 
 def descriptor(spec):
-    """ParameterDescriptor for a :class:`params.ParamSpec` (range, read-only, typing)."""
+    """ParameterDescriptor for a :class:`grass_nrsfm_ros.nrsfm.schema.Param` (range, read-only,
+    typing)."""
     d = ParameterDescriptor(description=spec.description, read_only=spec.read_only,
                             dynamic_typing=spec.type is None)
     if spec.range is not None and spec.type is int:
@@ -126,9 +127,8 @@ class ReconstructionNode(Node):
         super().__init__(params.NODE_NAME, **node_kwargs)
         config = self._declare_parameters()
         self._log = RateLimitedLog(self.get_logger())
-        self._configure_blas(config['blas_threads'])
-        self.pipeline = params.make_pipeline(config, solver_factory,
-                                             warm_start_class=warm_start_class)
+        self._configure_blas()
+        self.pipeline = make_pipeline(config, solver_factory, warm_start_class=warm_start_class)
         self._frame_id = config['frame_id']
         self._counts = dict(messages=0, dropped_messages=0, dropped_windows=0, solve_errors=0)
         self._last_solve = {}
@@ -171,10 +171,11 @@ class ReconstructionNode(Node):
                 self._frame_id = str(p.value)
         return SetParametersResult(successful=True)
 
-    def _configure_blas(self, threads):
-        """Cap BLAS/OpenMP threads so one core stays free for the executor."""
+    def _configure_blas(self):
+        """Cap BLAS/OpenMP threads at all cores but one, so one stays free for the executor
+        (the solver itself runs BLAS on one thread)."""
         from threadpoolctl import threadpool_limits
-        threads = threads or max(1, (os.cpu_count() or 2) - 1)
+        threads = max(1, (os.cpu_count() or 2) - 1)
         self._blas_limits = threadpool_limits(limits=threads)
 
     def _open_recorder(self, path):

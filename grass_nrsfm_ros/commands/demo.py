@@ -48,7 +48,8 @@ def streaming(seq, tracks_bag, points_bag):
     """Run the node's pipeline over ``tracks_bag`` offline; print the streaming e3D."""
     from grass_nrsfm_ros import bag
     from grass_nrsfm_ros.nrsfm import e3d
-    from grass_nrsfm_ros.params import defaults, make_pipeline
+    from grass_nrsfm_ros.params import defaults
+    from grass_nrsfm_ros.pipeline import make_pipeline
 
     pipeline = make_pipeline(defaults())
     report = bag.reconstruct_bag(tracks_bag, points_bag, pipeline, progress=None)
