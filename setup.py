@@ -19,11 +19,16 @@ console_scripts = ['grass-nrsfm = grass_nrsfm_ros.cli:main']
 if COLCON_STYLE:
     console_scripts.append('node = grass_nrsfm_ros.node:main')
 
+PLOT = ['matplotlib>=3.5']     # pictures: grass-nrsfm render, bench plots
+
 ROS_JAZZY_WHEELS = [
     'ros-rclpy[fastrtps]==7.1.6',
     'ros-sensor-msgs==5.3.6',
     'ros-std-msgs==5.3.6',
     'ros-diagnostic-msgs==5.3.6',
+    'ros-std-srvs==5.3.6',
+    'ros-visualization-msgs==5.3.6',
+    'ros-geometry-msgs==5.3.6',
     'ros-builtin-interfaces==2.0.3',
     'ros-rosgraph-msgs==2.0.3',
     'ros-rcl-interfaces==2.0.3',
@@ -37,6 +42,7 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),
         ('share/' + PACKAGE + '/config', glob('config/*')),
+        ('share/' + PACKAGE + '/launch', glob('launch/*.launch.py')),
     ],
     python_requires='>=3.10',
     install_requires=[
@@ -52,9 +58,10 @@ setup(
     ],
     extras_require={
         'ros': ROS_JAZZY_WHEELS,
-        'test': ['pytest>=7', 'hypothesis>=6', 'colcon-common-extensions>=0.3', 'flake8>=6',
-                 'flake8-quotes>=3.3', 'flake8-import-order>=0.18',
-                 'pytest-rerunfailures>=12'],
+        'plot': PLOT,
+        'test': PLOT + ['pytest>=7', 'hypothesis>=6', 'colcon-common-extensions>=0.3',
+                        'flake8>=6', 'flake8-quotes>=3.3', 'flake8-import-order>=0.18',
+                        'pytest-rerunfailures>=12'],
     },
     tests_require=['pytest'],
     zip_safe=True,

@@ -45,7 +45,8 @@ def run(mode):
         series = {m: ([r['r'] for r in rows if r['method'] == m],
                       [r['e3d_mean'] for r in rows if r['method'] == m]) for m in METHODS}
         path = plot.line_plot(mode.out_dir / 'noise.png', series, title=f'e3D vs noise, {name}',
-                              xlabel='r (sigma = r max|W|)', ylabel='e3D')
+                              xlabel='noise r (sigma = r max|W|, pixels)',
+                              ylabel='e3D (relative 3D error)')
         plots = [path.name] if path else []
     return {'sequence': name, 'F': W.shape[0] // 2, 'P': W.shape[1], 'rows': rows,
             'skipped': skipped, 'plots': plots,

@@ -1,113 +1,70 @@
-"""PNG plots for the benchmark results, no matplotlib.
+"""PNG plots for the benchmark results, with matplotlib (the ``[plot]`` extra): figures are
+made with ``matplotlib.figure.Figure`` and saved by the Agg canvas, so no GUI backend and no
+pyplot state are involved.
 
-Uses the package's renderer (``grass_nrsfm_ros.render``: ``plot`` and ``write_png``) where it
-exists; until then a minimal fallback draws axes, lines and markers without any text (the
-titles and axis names are in the JSON beside each plot). ``line_plot`` and ``matrix_image`` are
-the only entry points the suites use, so the switch is in one place.
+``line_plot``, ``bar_plot`` and ``matrix_image`` are the entry points the suites use; each
+writes one PNG with axes, ticks, axis labels (with units) and a legend, and returns its path.
 """
-import struct
-import zlib
-
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
 import numpy as np
 
-PALETTE = ((31, 119, 180), (214, 39, 40), (44, 160, 44), (255, 127, 14), (148, 103, 189),
-           (140, 86, 75), (227, 119, 194), (127, 127, 127))
+DPI = 100
 
 
-def _renderer():
-    try:
-        from grass_nrsfm_ros import render
-    except ImportError:
-        return None
-    return render if hasattr(render, 'plot') and hasattr(render, 'write_png') else None
+def _figure(height_in, width_in):
+    fig = Figure(figsize=(width_in, height_in))
+    FigureCanvasAgg(fig)
+    return fig, fig.add_subplot()
 
 
-def png_bytes(rgb):
-    """PNG file bytes of ``rgb: (H, W, 3) uint8``."""
-    rgb = np.ascontiguousarray(rgb, dtype=np.uint8)
-    h, w, _ = rgb.shape
-    raw = np.concatenate([np.zeros((h, 1), np.uint8), rgb.reshape(h, 3 * w)], axis=1)
-
-    def chunk(tag, data):
-        return (struct.pack('>I', len(data)) + tag + data
-                + struct.pack('>I', zlib.crc32(tag + data) & 0xffffffff))
-    return (b'\x89PNG\r\n\x1a\n' + chunk(b'IHDR', struct.pack('>IIBBBBB', w, h, 8, 2, 0, 0, 0))
-            + chunk(b'IDAT', zlib.compress(raw.tobytes(), 6)) + chunk(b'IEND', b''))
-
-
-def write_png(path, rgb):
-    render = _renderer()
-    if render is not None:
-        return render.write_png(path, rgb)
-    with open(path, 'wb') as fh:
-        fh.write(png_bytes(rgb))
+def _save(fig, path):
+    fig.tight_layout()
+    fig.savefig(path, dpi=DPI)
     return path
 
 
-def _draw_segment(img, x0, y0, x1, y1, color):
-    n = int(max(abs(x1 - x0), abs(y1 - y0))) + 1
-    xs = np.rint(np.linspace(x0, x1, n)).astype(int)
-    ys = np.rint(np.linspace(y0, y1, n)).astype(int)
-    for dx in (0, 1):
-        ok = (ys >= 0) & (ys < img.shape[0]) & (xs + dx >= 0) & (xs + dx < img.shape[1])
-        img[ys[ok], xs[ok] + dx] = color
-
-
-def _fallback_plot(series, size, logy):
-    H, W = size
-    img = np.full((H, W, 3), 255, np.uint8)
-    data = []
-    for x, y in series.values():
-        x, y = np.asarray(x, float), np.asarray(y, float)
-        if logy:
-            y = np.log10(np.where(y > 0, y, np.nan))
-        ok = np.isfinite(x) & np.isfinite(y)
-        data.append((x[ok], y[ok]))
-    xs = np.concatenate([d[0] for d in data] + [np.zeros(0)])
-    ys = np.concatenate([d[1] for d in data] + [np.zeros(0)])
-    if xs.size == 0:
-        return img
-    lo_x, hi_x = xs.min(), xs.max() + (xs.max() == xs.min())
-    lo_y, hi_y = ys.min(), ys.max() + (ys.max() == ys.min())
-    m = 20
-
-    def px(x, y):
-        return (m + (x - lo_x) / (hi_x - lo_x) * (W - 2 * m),
-                H - m - (y - lo_y) / (hi_y - lo_y) * (H - 2 * m))
-    _draw_segment(img, m, H - m, W - m, H - m, (0, 0, 0))
-    _draw_segment(img, m, m, m, H - m, (0, 0, 0))
-    for k, (x, y) in enumerate(data):
-        color = PALETTE[k % len(PALETTE)]
-        pts = [px(a, b) for a, b in zip(x, y)]
-        for (a0, b0), (a1, b1) in zip(pts, pts[1:]):
-            _draw_segment(img, a0, b0, a1, b1, color)
-        for a, b in pts:
-            r, c = int(round(b)), int(round(a))
-            img[max(r - 2, 0):r + 3, max(c - 2, 0):c + 3] = color
-    return img
-
-
-def line_plot(path, series, title='', xlabel='', ylabel='', logy=False, size=(360, 560)):
-    """Write a line plot PNG; ``series`` maps a label to ``(x: (N,), y: (N,))``."""
+def line_plot(path, series, title='', xlabel='', ylabel='', logy=False, size=(360, 560),
+              logx=False):
+    """Write a line plot; ``series`` maps a label to ``(x: (N,), y: (N,))``; ``size`` is
+    ``(height, width)`` in pixels. Returns ``path``, or None when every series is empty."""
     series = {k: v for k, v in series.items() if len(v[0])}
     if not series:
         return None
-    render = _renderer()
-    if render is not None:
-        rgb = render.plot(series, title=title, xlabel=xlabel, ylabel=ylabel, size=size,
-                          logy=logy)
-    else:
-        rgb = _fallback_plot(series, size, logy)
-    write_png(path, rgb)
-    return path
+    fig, ax = _figure(size[0] / DPI, size[1] / DPI)
+    for label, (x, y) in series.items():
+        ax.plot(np.asarray(x, float), np.asarray(y, float), marker='o', ms=4, label=label)
+    ax.set_xscale('log' if logx else 'linear')
+    ax.set_yscale('log' if logy else 'linear')
+    ax.set(title=title, xlabel=xlabel, ylabel=ylabel)
+    ax.grid(True, which='both', alpha=0.3)
+    ax.legend(fontsize='small')
+    return _save(fig, path)
 
 
-def matrix_image(path, M, scale=4):
-    """Write ``|M|`` (any 2-D array) as a grey-scale PNG, each entry ``scale`` pixels square,
-    black = largest magnitude."""
+def bar_plot(path, values, title='', ylabel='', size=(360, 640)):
+    """Write a bar chart of ``values`` (label -> number), each bar labelled with its value."""
+    fig, ax = _figure(size[0] / DPI, size[1] / DPI)
+    labels = list(values)
+    bars = ax.bar(range(len(labels)), [values[k] for k in labels],
+                  color=[f'C{i}' for i in range(len(labels))], label=labels)
+    ax.bar_label(bars, fmt='%.2f')
+    ax.set_xticks(range(len(labels)), [''] * len(labels))
+    ax.set(title=title, ylabel=ylabel)
+    ax.set_ylim(0, max(1.0, 1.2 * max(values.values())))
+    ax.legend(fontsize='small', loc='upper left')
+    ax.grid(True, axis='y', alpha=0.3)
+    return _save(fig, path)
+
+
+def matrix_image(path, M, scale=4, title='', label='|entry|'):
+    """Write ``|M|`` (any 2-D array) as an image with a colour bar; ``scale`` pixels per entry
+    (at least 3 inches wide)."""
     A = np.abs(np.asarray(M, float))
-    A = A / A.max() if A.max() > 0 else A
-    grey = np.rint(255 * (1.0 - A)).astype(np.uint8)
-    grey = np.repeat(np.repeat(grey, scale, axis=0), scale, axis=1)
-    write_png(path, np.repeat(grey[:, :, None], 3, axis=2))
-    return path
+    h, w = A.shape
+    width = max(3.0, w * scale / DPI + 1.2)
+    fig, ax = _figure(max(2.5, width * h / max(w, 1)), width)
+    im = ax.imshow(A, cmap='Greys', interpolation='nearest', aspect='auto')
+    fig.colorbar(im, ax=ax, label=label)
+    ax.set(title=title, xlabel='column', ylabel='row')
+    return _save(fig, path)

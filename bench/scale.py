@@ -75,12 +75,14 @@ def plots(rows, out_dir):
             sel = [r for r in rows if r['sweep'] == sweep and r[fixed_key] == fixed]
             for what, key, logy in (('time', 'seconds_cpu', True),
                                     ('memory', 'solve_extra_mb', False)):
-                series = {m: ([np.log10(r[sweep]) for r in sel if r['method'] == m],
+                series = {m: ([r[sweep] for r in sel if r['method'] == m],
                               [r[key] for r in sel if r['method'] == m]) for m in METHODS}
                 path = plot.line_plot(
                     out_dir / f'scale_{what}_vs_{sweep}_{fixed_key}{fixed}.png', series,
-                    title=f'{what} vs {sweep} ({fixed_key}={fixed})', xlabel=f'log10 {sweep}',
-                    ylabel='CPU s' if what == 'time' else 'extra peak RSS MiB', logy=logy)
+                    title=f'{what} vs {sweep} ({fixed_key}={fixed})',
+                    xlabel={'F': 'frames F', 'P': 'tracks P'}.get(sweep, sweep),
+                    ylabel='CPU time (s)' if what == 'time' else 'extra peak RSS (MiB)',
+                    logy=logy, logx=True)
                 if path:
                     names.append(path.name)
     return names

@@ -73,27 +73,38 @@ def noise_table(doc):
 
 
 def parameters_table(doc):
-    lines = [f'Ours on {doc.get("sequence")} ({doc.get("F")} x {doc.get("P")}):', '',
-             '| setting | e3D | CPU s | groups |', '|---|---|---|---|']
-    for r in doc['rows']:
-        lines.append(f'| {r["param"]} = {r["value"]} | {fmt(r["e3d"])} | '
-                     f'{fmt(r["seconds_cpu"], 2)} | {r.get("n_groups", "-")} |')
+    """One row per parameter: e3D for each value (CPU seconds and group counts in the JSON)."""
+    rows = doc['rows']
+    cpu = [r['seconds_cpu'] for r in rows if r.get('seconds_cpu') is not None]
+    spread = f', {min(cpu):.1f}-{max(cpu):.1f} CPU s per solve' if cpu else ''
+    lines = [f'Ours on {doc.get("sequence")} ({doc.get("F")} x {doc.get("P")}){spread}:', '',
+             '| parameter | e3D by value |', '|---|---|']
+    for param in dict.fromkeys(r['param'] for r in rows):
+        cells = ', '.join(f'{r["value"]}: {fmt(r["e3d"])}' for r in rows if r['param'] == param)
+        lines.append(f'| {param} | {cells} |')
     return lines
 
 
 def scale_table(doc):
-    lines = ['| method | against | fixed | CPU-time exponent | memory exponent | largest case '
-             '| CPU s | extra MiB |', '|---|---|---|---|---|---|---|---|']
-    for e in doc.get('exponents', []):
-        sweep = e['against']
-        (fk, fv), = e['fixed'].items()
-        sel = [r for r in doc['rows'] if r['method'] == e['method'] and r['sweep'] == sweep
-               and r[fk] == fv]
-        big = max(sel, key=lambda r: r[sweep])
-        lines.append(f'| {METHOD_NAMES[e["method"]]} | {sweep} | {fk}={fv} | '
-                     f'{fmt(e["time_exponent"], 2)} | {fmt(e["memory_exponent"], 2)} | '
-                     f'{big["F"]} x {big["P"]} | {fmt(big["seconds_cpu"], 2)} | '
-                     f'{fmt(big["solve_extra_mb"], 0)} |')
+    """One row per method: its CPU-time / memory growth exponents per sweep, its largest case."""
+    exponents = doc.get('exponents', [])
+    sweeps = list(dict.fromkeys((e['against'], *e['fixed'].items()) for e in exponents))
+    heads = [f'exponent in {against} at {fk}={fv}' for against, (fk, fv) in sweeps]
+    lines = ['| method | ' + ' | '.join(heads) + ' | largest case | CPU s | extra MiB |',
+             '|---|' + '---|' * (len(sweeps) + 3)]
+    for method in dict.fromkeys(e['method'] for e in exponents):
+        cells = []
+        for against, (fk, fv) in sweeps:
+            e = next((x for x in exponents if x['method'] == method and x['against'] == against
+                      and x['fixed'] == {fk: fv}), None)
+            cells.append('-' if e is None else
+                         f'{fmt(e["time_exponent"], 2)} / {fmt(e["memory_exponent"], 2)}')
+        big = max((r for r in doc['rows'] if r['method'] == method),
+                  key=lambda r: (r['F'] * r['P'], r['F']), default=None)
+        largest = '- | - | -' if big is None else (
+            f'{big["F"]} x {big["P"]} | {fmt(big["seconds_cpu"], 2)} | '
+            f'{fmt(big.get("solve_extra_mb"), 0)}')
+        lines.append(f'| {METHOD_NAMES[method]} | ' + ' | '.join(cells) + f' | {largest} |')
     ratios = [r for r in doc['rows'] if r.get('iteration_over_svd') is not None]
     if ratios:
         lines += ['', 'Ours, time per ADMM iteration / one economy SVD of S# (F x 3P): '
@@ -127,7 +138,7 @@ SECTIONS = (('accuracy', 'Accuracy (e3D; "A": Akhter\'s metric, the one of the p
              'numbers; PTA K chosen against ground truth)', accuracy_table),
             ('noise', 'Noise', noise_table),
             ('parameters', 'Parameters and ablation', parameters_table),
-            ('scale', 'Scale (fresh process per case)', scale_table),
+            ('scale', 'Scale (fresh process per case; exponents: CPU time / memory)', scale_table),
             ('streaming', 'Streaming (pipeline.SlidingWindow, no ROS)', streaming_table))
 
 

@@ -2,7 +2,7 @@
 
 Everything here is I/O; no solver. Bags are written as rosbag2 **MCAP** bags, the layout
 ``ros2 bag record -s mcap`` makes: a directory ``NAME/`` with ``metadata.yaml`` (rosbag2
-version 8, Jazzy) and ``NAME_0.mcap`` (profile ``ros2``, ``ros2msg`` schemas embedded, ``cdr``
+version 9, Jazzy) and ``NAME_0.mcap`` (profile ``ros2``, ``ros2msg`` schemas embedded, ``cdr``
 messages). The MCAP file is written with the ``mcap`` library because it lets us choose the
 chunk size and finish a chunk on demand: a recording killed with ``kill -9`` loses at most the
 chunk in progress (``chunk_size`` bytes or ``flush_period`` seconds, whichever comes first)
@@ -32,6 +32,7 @@ import numpy as np
 
 from grass_nrsfm_ros.cloud import (cloud_layout, CloudError, decode_points, decode_tracks,
                                    points_array, tracks_array)
+from grass_nrsfm_ros.qos import offered_qos_list
 
 TRACKS_TOPIC = '/tracks'
 POINTS_TOPIC = '/points'
@@ -40,7 +41,7 @@ POINTCLOUD2 = 'sensor_msgs/msg/PointCloud2'
 DEFAULT_CHUNK_SIZE = 256 * 1024          # bytes of messages per MCAP chunk
 DEFAULT_FLUSH_PERIOD = 1.0               # seconds a chunk may stay open
 DEFAULT_QUEUE_SIZE = 256                 # messages waiting for the writer thread
-ROSBAG2_VERSION = 8                      # Jazzy
+ROSBAG2_VERSION = 9                      # Jazzy
 
 TrackFrame = namedtuple('TrackFrame', 'stamp_ns frame_id ids uv')
 TrackFrame.__doc__ = 'One frame of tracks: ``ids: (P,) uint32``, ``uv: (P, 2) float64``.'
@@ -236,7 +237,8 @@ def write_metadata(bag_dir, files, topics, start_ns, duration_ns):
         'message_count': count,
         'topics_with_message_count': [
             {'topic_metadata': {'name': name, 'type': msgtype, 'serialization_format': 'cdr',
-                                'offered_qos_profiles': qos, 'type_description_hash': rihs},
+                                'offered_qos_profiles': offered_qos_list(qos),
+                                'type_description_hash': rihs},
              'message_count': n}
             for name, msgtype, rihs, qos, n in topics],
         'compression_format': '',

@@ -33,7 +33,7 @@ import numpy as np
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
 from grass_nrsfm_ros.nrsfm.tracking import build_model, Tracker
 from grass_nrsfm_ros.params import OUTPUTS
-from grass_nrsfm_ros.pipeline import FrameResult
+from grass_nrsfm_ros.pipeline import FrameResult, make_windows
 
 #: a bootstrap model is rebuilt from the frames so far when their count reaches each of these
 BOOTSTRAP_AT = (3, 6, 12, 24, 48)
@@ -112,8 +112,8 @@ class LivePipeline:
         if self.output == 'windows':
             return Step(windows=windows)
         frame = self.windows.newest
-        if self.windows.stats['resets'] != self._sequence:        # a new sequence
-            self._sequence = self.windows.stats['resets']
+        if self.windows.sequence != self._sequence:               # a new sequence
+            self._sequence = self.windows.sequence
             self._tracker, self._bootstrap, self._bootstrap_depth = None, [], {}
             self._residuals.clear()
         self._take_model()
@@ -224,6 +224,18 @@ class LivePipeline:
             total += float(np.dot(Z[f, a] - Z[f, a].mean(), z[b] - z[b].mean()))
         return total < 0.0
 
+    def reset(self):
+        """Drop the buffered frames, the tracker and its model (SlidingWindow.reset); the
+        next frame starts a new sequence. Returns ``{'frames': buffered frames dropped, 'model':
+        whether there was one}``."""
+        dropped = self.windows.reset()
+        had_model = self._tracker is not None
+        with self._lock:
+            self._waiting = None
+        self._tracker, self._bootstrap, self._bootstrap_depth = None, [], {}
+        self._residuals.clear()
+        return {**dropped, 'model': dropped['model'] or had_model}
+
     def flush(self):
         """The last window of the buffered frames (SlidingWindow.flush)."""
         return self.windows.flush()
@@ -250,6 +262,17 @@ class LivePipeline:
     @metres_per_pixel.setter
     def metres_per_pixel(self, value):
         self.windows.metres_per_pixel = float(value)
+
+
+def make_pipeline(config, solver_factory=None, **options):
+    """The LivePipeline that ``config`` describes (a dict of parameters as from
+    :func:`grass_nrsfm_ros.params.load_config` or the node's declarations; absent keys take
+    their defaults), over :func:`grass_nrsfm_ros.pipeline.make_windows` (``solver_factory``,
+    ``options``)."""
+    return LivePipeline(make_windows(config, solver_factory, **options),
+                        output=config.get('output', 'live'),
+                        temporal_prior=config.get('tracking_prior', 0.0),
+                        residual_limit=config.get('residual_limit', 3.0))
 
 
 def reconstruct_live(pipeline, stamps, frames, frame_id=''):

@@ -1,6 +1,10 @@
 """The ROS 2 node: wiring only. ``tracks`` (PointCloud2: track_id, u, v per camera frame) in;
 ``points`` (PointCloud2: x, y, z, track_id; every frame, tracked on arrival),
-``points/refined`` (the same frames once their window is solved) and ``/diagnostics`` out.
+``points/refined`` (the same frames once their window is solved) and ``/diagnostics`` out;
+optionally ``mesh`` (visualization_msgs/Marker TRIANGLE_LIST, ``publish_mesh``); service
+``~/reset`` (std_srvs/Trigger). The input's reliability follows ``input_reliability``
+(docs/decisions/0300-input-qos.md); rates and stamp delay are bookkept in
+:mod:`grass_nrsfm_ros.rates`.
 
 The algorithm lives in :mod:`grass_nrsfm_ros.live` (tracking against the newest model),
 :mod:`grass_nrsfm_ros.pipeline` (windows, warm start, alignment) and
@@ -39,8 +43,10 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header
+from std_srvs.srv import Trigger
 
-from grass_nrsfm_ros import cloud, params
+from grass_nrsfm_ros import cloud, mesh, params, qos as offered_qos, rates
+from grass_nrsfm_ros.live import make_pipeline
 from grass_nrsfm_ros.pipeline import FrameError, WindowError
 
 POINTCLOUD2 = 'sensor_msgs/msg/PointCloud2'
@@ -49,6 +55,8 @@ ACK_TIMEOUT_S = 2.0           # longest wait for subscribers to take a burst of 
 INPUT_DEPTH = 100            # tracks messages the node's reader keeps (3 s at 30 Hz)
 CLOSE_GRACE_S = 1.0          # close() waits this long for a running solve, then leaves it
 LATENCY_WINDOW = 300         # tracking latencies kept for the percentiles in /diagnostics
+RELIABILITY = {'reliable': ReliabilityPolicy.RELIABLE,
+               'best_effort': ReliabilityPolicy.BEST_EFFORT}
 
 
 class SolveCancelled(Exception):
@@ -56,7 +64,8 @@ class SolveCancelled(Exception):
 
 
 def descriptor(spec):
-    """ParameterDescriptor for a :class:`params.ParamSpec` (range, read-only, typing)."""
+    """ParameterDescriptor for a :class:`grass_nrsfm_ros.nrsfm.schema.Param` (range, read-only,
+    typing)."""
     d = ParameterDescriptor(description=spec.description, read_only=spec.read_only,
                             dynamic_typing=spec.type is None)
     if spec.range is not None and spec.type is int:
@@ -120,9 +129,8 @@ class ReconstructionNode(Node):
         super().__init__(params.NODE_NAME, **node_kwargs)
         config = self._declare_parameters()
         self._log = RateLimitedLog(self.get_logger())
-        self._configure_blas(config['blas_threads'])
-        self.pipeline = params.make_pipeline(config, solver_factory,
-                                             warm_start_class=warm_start_class)
+        self._configure_blas()
+        self.pipeline = make_pipeline(config, solver_factory, warm_start_class=warm_start_class)
         self._frame_id = config['frame_id']
         self._counts = dict(messages=0, dropped_messages=0, dropped_windows=0, solve_errors=0)
         self._last_solve = {}
@@ -131,22 +139,19 @@ class ReconstructionNode(Node):
         self._stopping = threading.Event()
         self._solve_thread = None
         qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-        # input: a history of INPUT_DEPTH frames, so a stall of the executor (the solver holding
-        # the GIL, a busy core) delays frames instead of overwriting them unseen
-        input_qos = QoSProfile(depth=INPUT_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
         overrides = QoSOverridingOptions.with_default_policies()
         self._input_group = MutuallyExclusiveCallbackGroup()
-        # one raw subscription: the CDR bytes are recorded as received, then decoded once
-        self.tracks_sub = self.create_subscription(
-            PointCloud2, 'tracks', self._on_tracks_raw, input_qos, raw=True,
-            callback_group=self._input_group, qos_overriding_options=overrides)
+        self._declare_input(config['input_reliability'], overrides)
         self.points_pub = self.create_publisher(PointCloud2, 'points', qos,
                                                 qos_overriding_options=overrides)
         self.refined_pub = self.create_publisher(PointCloud2, 'points/refined', qos,
                                                  qos_overriding_options=overrides)
         self._latencies = deque(maxlen=LATENCY_WINDOW)     # tracks received -> points sent
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        self.create_timer(1.0, self._publish_diagnostics,
+        self._declare_rates(config)
+        self._declare_mesh(config)
+        self._declare_services()
+        self.create_timer(1.0, self._on_housekeeping,
                           callback_group=MutuallyExclusiveCallbackGroup())
         self.add_post_set_parameters_callback(self._on_parameters_set)
         self.recorder = self._open_recorder(config['record_path'])
@@ -172,10 +177,11 @@ class ReconstructionNode(Node):
                 self._frame_id = str(p.value)
         return SetParametersResult(successful=True)
 
-    def _configure_blas(self, threads):
-        """Cap BLAS/OpenMP threads so one core stays free for the executor."""
+    def _configure_blas(self):
+        """Cap BLAS/OpenMP threads at all cores but one, so one stays free for the executor
+        (the solver itself runs BLAS on one thread)."""
         from threadpoolctl import threadpool_limits
-        threads = threads or max(1, (os.cpu_count() or 2) - 1)
+        threads = max(1, (os.cpu_count() or 2) - 1)
         self._blas_limits = threadpool_limits(limits=threads)
 
     def _open_recorder(self, path):
@@ -188,18 +194,164 @@ class ReconstructionNode(Node):
         from grass_nrsfm_ros.bag import Recorder
 
         recorder = Recorder(path, on_error=self.get_logger().error)
-        for topic in (self.tracks_sub.topic_name, self.points_pub.topic_name,
-                      self.refined_pub.topic_name):
-            recorder.add_topic(topic, POINTCLOUD2)
+        self._tracks_recorded = False           # added with its publishers' QoS on 1st message
+        for publisher in (self.points_pub, self.refined_pub):
+            recorder.add_topic(publisher.topic_name, POINTCLOUD2,
+                               qos=self._offered_qos(publisher.topic_name, own=True))
         if recorder.error is None:
             self.get_logger().info(f'recording tracks and points to {path}')
         return recorder
 
+    # -- input QoS ------------------------------------------------------------------------------
+    def _declare_input(self, reliability, overrides):
+        """The tracks subscription: a history of INPUT_DEPTH frames (a stall of the executor,
+        the solver holding the GIL or a busy core, delays frames instead of overwriting them
+        unseen) and the reliability ``input_reliability`` asks for (see params.py). A
+        ``qos_overrides`` reliability pins it (then 'auto' adapts no more)."""
+        self._input_mode = reliability
+        self._input_pinned = self._reliability_overridden()
+        asked = self._wanted_reliability() if reliability == 'auto' else RELIABILITY[reliability]
+        self._subscribe_tracks(asked, overrides)
+
+    def _reliability_overridden(self):
+        """Whether a ``qos_overrides.<tracks>.subscription.reliability`` parameter was given
+        (declared for a moment with an empty default; the override, if any, replaces it)."""
+        name = f"qos_overrides.{self.resolve_topic_name('tracks')}.subscription.reliability"
+        given = self.declare_parameter(name, '', ParameterDescriptor(dynamic_typing=True)).value
+        self.undeclare_parameter(name)
+        return given != ''
+
+    def _subscribe_tracks(self, reliability, overrides=None):
+        """(Re)create the raw tracks subscription: the CDR bytes are recorded as received,
+        then decoded once."""
+        kwargs = {} if overrides is None else {'qos_overriding_options': overrides}
+        self.tracks_sub = self.create_subscription(
+            PointCloud2, 'tracks', self._on_tracks_raw,
+            QoSProfile(depth=INPUT_DEPTH, reliability=reliability), raw=True,
+            callback_group=self._input_group, **kwargs)
+
+    def _wanted_reliability(self):
+        """RELIABLE while every tracks publisher found offers reliable; BEST_EFFORT when one
+        offers best effort or none is found (the sensor-data fallback, as image_proc does)."""
+        infos = self.get_publishers_info_by_topic(self.resolve_topic_name('tracks'))
+        if infos and all(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+                         for i in infos):
+            return ReliabilityPolicy.RELIABLE
+        return ReliabilityPolicy.BEST_EFFORT
+
+    def _adapt_input_qos(self):
+        """'auto': resubscribe when the publishers found call for the other reliability."""
+        if self._input_mode != 'auto' or self._input_pinned:
+            return
+        wanted = self._wanted_reliability()
+        if wanted == self.tracks_sub.qos_profile.reliability:
+            return
+        self.destroy_subscription(self.tracks_sub)
+        self._subscribe_tracks(wanted)
+        self.get_logger().info(f'tracks publishers changed: subscribing '
+                               f'{wanted.name.lower()} to {self.tracks_sub.topic_name}')
+
+    # -- services -------------------------------------------------------------------------------
+    def _declare_services(self):
+        self._resets_requested, self._last_reset = 0, ''
+        self.reset_srv = self.create_service(Trigger, '~/reset', self._on_reset)
+
+    def _on_reset(self, request, response):
+        """``~/reset``: drop the buffered frames, the window waiting and the model; the next
+        frame starts a new sequence. A solve already running finishes and publishes."""
+        with self._lock:
+            waiting, self._pending = self._pending, None
+        sequence = self.pipeline.windows.stats['resets'] + 1
+        dropped = self.pipeline.reset()
+        self._resets_requested += 1
+        self._input_rate.reset(time.monotonic())
+        self._output_rate.reset(time.monotonic())
+        self._mesh.ids = None
+        response.success = True
+        response.message = (
+            f'reset: dropped {dropped["frames"]} buffered frames, '
+            f'{"no window" if waiting is None else f"a {waiting.n_frames}-frame window"} '
+            'waiting, '
+            f'{"the model" if dropped["model"] else "no model"} of sequence {sequence}; '
+            f'sequence {sequence + 1} starts with the next frame')
+        self._last_reset = response.message
+        self.get_logger().info(response.message)
+        self._publish_diagnostics()
+        return response
+
+    # -- mesh -----------------------------------------------------------------------------------
+    def _declare_mesh(self, config):
+        """``mesh`` publisher (visualization_msgs/Marker) when ``publish_mesh``, else None."""
+        self._mesh = mesh.MeshCache(config['mesh_max_edge'])
+        self.mesh_pub = None
+        if config['publish_mesh']:
+            from visualization_msgs.msg import Marker
+
+            self.mesh_pub = self.create_publisher(
+                Marker, 'mesh', QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE))
+
+    def _publish_mesh(self, result):
+        """The surface of one published frame: triangles on its track set's first frame in the
+        image plane (its x, y are the frame's centred u, v times metres_per_pixel)."""
+        from grass_nrsfm_ros.marker import mesh_marker
+
+        triangles = self._mesh.triangles_for(result.ids, result.xyz[:, :2])
+        vertices, colours = mesh.triangle_list(result.xyz, triangles)
+        header = Header(stamp=to_stamp(result.stamp_ns),
+                        frame_id=self._frame_id or result.frame_id)
+        self.mesh_pub.publish(mesh_marker(vertices, colours, header))
+
+    # -- rates ----------------------------------------------------------------------------------
+    def _declare_rates(self, config):
+        """Input and output frequency (diagnostic_updater's FrequencyStatus) and output stamp
+        delay (TimeStampStatus), bookkept in :mod:`grass_nrsfm_ros.rates`."""
+        now = time.monotonic()
+        self._input_rate = rates.FrequencyStatus(config['expected_rate'],
+                                                 config['rate_tolerance'], now=now)
+        self._output_rate = rates.FrequencyStatus(config['expected_rate'],
+                                                  config['rate_tolerance'], now=now)
+        self._output_delay = rates.TimeStampStatus()
+        self._rate_cache = []
+
+    def _rate_statuses(self):
+        """DiagnosticStatus of each rate, one snapshot per call (call once per second)."""
+        now = time.monotonic()
+        named = ((f'{self.tracks_sub.topic_name} input frequency', self._input_rate.status(now)),
+                 (f'{self.points_pub.topic_name} output frequency',
+                  self._output_rate.status(now)),
+                 (f'{self.points_pub.topic_name} output timestamp delay',
+                  self._output_delay.status()))
+        return [DiagnosticStatus(level=bytes([level]), name=f'{self.get_name()}: {name}',
+                                 message=message, hardware_id=self.get_fully_qualified_name(),
+                                 values=[KeyValue(key=k, value=v) for k, v in values])
+                for name, (level, message, values) in named]
+
+    def _on_housekeeping(self):
+        """Once a second: adapt the input QoS, take the rates' snapshot, publish diagnostics."""
+        self._adapt_input_qos()
+        self._rate_cache = self._rate_statuses()
+        self._publish_diagnostics()
+
     # -- input ----------------------------------------------------------------------------------
+    def _offered_qos(self, topic, own=False):
+        """``offered_qos_profiles`` of ``topic``'s publishers as discovered (this node's own
+        with ``own``, the others' without), in rosbag2's form."""
+        me = (self.get_name(), self.get_namespace())
+        infos = [i for i in self.get_publishers_info_by_topic(topic)
+                 if ((i.node_name, i.node_namespace) == me) == own]
+        if own and not infos:                     # not in the graph yet: as created
+            return offered_qos.offered_qos_yaml([self.points_pub.qos_profile])
+        return offered_qos.offered_qos_yaml([i.qos_profile for i in infos])
+
     def _on_tracks_raw(self, raw):
         """Record one serialized tracks message (receive time), then decode and handle it."""
         self._received = time.monotonic()
+        self._input_rate.tick()
         if self.recorder is not None:
+            if not self._tracks_recorded:
+                self.recorder.add_topic(self.tracks_sub.topic_name, POINTCLOUD2,
+                                        qos=self._offered_qos(self.tracks_sub.topic_name))
+                self._tracks_recorded = True
             self.recorder.write(self.tracks_sub.topic_name, raw,
                                 self.get_clock().now().nanoseconds)
         try:
@@ -314,6 +466,8 @@ class ReconstructionNode(Node):
             if i and i % depth == 0:
                 publisher.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT_S))
             self._publish(publisher, result)
+        if results and self.mesh_pub is not None and not self._stopping.is_set():
+            self._publish_mesh(results[-1])
 
     def _publish(self, publisher, result):
         if self._stopping.is_set():
@@ -322,6 +476,10 @@ class ReconstructionNode(Node):
                         frame_id=self._frame_id or result.frame_id)
         msg = cloud.encode_points(result.xyz, result.ids, header)
         publisher.publish(msg)
+        if publisher is self.points_pub:
+            self._output_rate.tick()
+            self._output_delay.tick(result.stamp_ns * 1e-9,
+                                    self.get_clock().now().nanoseconds * 1e-9)
         if self.recorder is not None:
             self.recorder.write(publisher.topic_name, msg, self.get_clock().now().nanoseconds)
 
@@ -366,7 +524,11 @@ class ReconstructionNode(Node):
                   'windows not solved': self._counts['solve_errors'],
                   'solver busy': self._busy,
                   'tracks publishers': self.tracks_sub.get_publisher_count(),
-                  'points subscribers': self.points_pub.get_subscription_count()}
+                  'points subscribers': self.points_pub.get_subscription_count(),
+                  'input reliability': self.tracks_sub.qos_profile.reliability.name.lower(),
+                  'resets requested': self._resets_requested}
+        if self._last_reset:
+            values['last reset'] = self._last_reset
         message = 'falling behind: skipping to the newest window' if behind else 'ok'
         level = DiagnosticStatus.WARN if behind else DiagnosticStatus.OK
         if self.recorder is not None and self.recorder.error:
@@ -376,7 +538,8 @@ class ReconstructionNode(Node):
             hardware_id=self.get_fully_qualified_name(),
             values=[KeyValue(key=k.replace('_', ' '), value=str(v)) for k, v in values.items()])
         self.diagnostics_pub.publish(DiagnosticArray(
-            header=Header(stamp=self.get_clock().now().to_msg()), status=[status]))
+            header=Header(stamp=self.get_clock().now().to_msg()),
+            status=[status, *self._rate_cache]))
 
     def close(self, grace=CLOSE_GRACE_S):
         """Stop solving (a running solve is cancelled through its progress callback, or left

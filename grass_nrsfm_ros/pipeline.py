@@ -67,12 +67,12 @@ import time
 
 import numpy as np
 
+from grass_nrsfm_ros import params
 from grass_nrsfm_ros.cloud import strictly_increasing
 from grass_nrsfm_ros.nrsfm.density import fill_dropped
 from grass_nrsfm_ros.nrsfm.measurement import as_frames, centre
-from grass_nrsfm_ros.params import WARM_ROTATIONS, WARM_STARTS
+from grass_nrsfm_ros.params import MIN_WINDOW_FRAMES
 
-MIN_WINDOW_FRAMES = 3
 #: fewest tracks a window may be solved on when ``mapping_tracks`` caps them
 MIN_MAPPING_TRACKS = 100
 #: a context frame joins a solve only while the tracks common to it, the newer context frames
@@ -211,6 +211,16 @@ def default_solver_factory(**solver_kwargs):
     return make
 
 
+def make_windows(config, solver_factory=None, **options):
+    """The :class:`SlidingWindow` that ``config`` describes (a dict of parameters as from
+    :func:`grass_nrsfm_ros.params.load_config` or the node's declarations; absent keys take
+    their defaults). ``solver_factory`` replaces ``GrassmannNRSfM(**solver parameters)``;
+    ``options`` (e.g. ``warm_start_class``) go to SlidingWindow as they are."""
+    factory = solver_factory or default_solver_factory(**params.solver_kwargs(config))
+    return SlidingWindow(factory, metres_per_pixel=config.get('metres_per_pixel', 1.0),
+                         **params.window_kwargs(config), **options)
+
+
 class SlidingWindow:
     """The windowed pipeline; see the module docstring for the policies.
 
@@ -223,19 +233,10 @@ class SlidingWindow:
                  warm_start='model', align_windows=True, metres_per_pixel=1.0,
                  context_frames=60, warm_rotations='solver', warm_start_class=None,
                  key_frames=30, mapping_tracks=0):
-        if not MIN_WINDOW_FRAMES <= window_size:
-            raise ValueError(f'window_size={window_size}: at least {MIN_WINDOW_FRAMES} frames')
-        if not 1 <= window_stride <= window_size:
-            raise ValueError(f'window_stride={window_stride}: must be in 1..window_size '
-                             f'({window_size})')
-        if context_frames < 0:
-            raise ValueError(f'context_frames={context_frames}: must be >= 0')
-        if key_frames < 0:
-            raise ValueError(f'key_frames={key_frames}: must be >= 0')
-        if warm_start not in WARM_STARTS:
-            raise ValueError(f'warm_start={warm_start!r}: one of {WARM_STARTS}')
-        if warm_rotations not in WARM_ROTATIONS:
-            raise ValueError(f'warm_rotations={warm_rotations!r}: one of {WARM_ROTATIONS}')
+        params.check_window(window_size=window_size, window_stride=window_stride,
+                            context_frames=context_frames, key_frames=key_frames,
+                            warm_start=warm_start, warm_rotations=warm_rotations,
+                            mapping_tracks=mapping_tracks)
         self.solver_factory = solver_factory or default_solver_factory()
         self.context_frames, self.warm_rotations = int(context_frames), warm_rotations
         self.key_frames = int(key_frames) if self.context_frames else 0
@@ -312,6 +313,30 @@ class SlidingWindow:
                 self._emitted_until = fresh[-1].stamp_ns
             return []
         return [self._emit(frames)]
+
+    @property
+    def sequence(self):
+        """The current sequence's number (0 first; one more after each reset or id change)."""
+        return self._sequence
+
+    def reset(self):
+        """Drop the buffered frames (counted lost unless already in a window) and the model
+        (the previous solution, the rotation check); the next frame starts a new sequence.
+        Frames of windows already closed stay pending until their solve or a newer sequence's
+        publication accounts for them. Returns ``{'frames': buffered frames dropped, 'model':
+        whether there was one}``."""
+        fresh = [f for f in self._frames
+                 if self._emitted_until is None or f.stamp_ns > self._emitted_until]
+        self._count('frames_lost', len(fresh))
+        had_model = self._previous is not None
+        self._frames = []
+        self._history.clear()
+        self._keys = KeyFrames(self.key_frames)
+        self._previous, self._rotation_check = None, None
+        self._sequence += 1
+        self._emitted_until = None
+        self._count('resets')
+        return {'frames': len(fresh), 'model': had_model}
 
     def _checked_frame(self, stamp_ns, ids, uv, frame_id):
         ids = np.asarray(ids)
@@ -602,17 +627,17 @@ class SlidingWindow:
         if self.warm_rotations == 'solver' or known.all():
             return R
         if self.warm_rotations == 'fit':
-            from grass_nrsfm_ros.nrsfm.rotation import _rotations_from_rows
+            from grass_nrsfm_ros.nrsfm.rotation import rotations_from_rows
             S = S - S.mean(axis=2, keepdims=True)
             X = R.transpose(0, 2, 1) @ S                     # world shapes of the source frames
             M = as_frames(Wc, 2) @ np.linalg.pinv(X)         # (F, 2, 3) camera rows
-            fitted, ok = _rotations_from_rows(M)
+            fitted, ok = rotations_from_rows(M)
             out = R.copy()
             use = ~known & ok
             out[use] = fitted[use]
             return out
         from grass_nrsfm_ros.nrsfm.rotation import estimate_rotations
-        from grass_nrsfm_ros.nrsfm.admm import align_rotations
+        from grass_nrsfm_ros.nrsfm.rotation import align_rotations
         est = estimate_rotations(Wc).R
         probe = np.concatenate([est, np.eye(3)[None]])     # the last row yields the global Q
         aligned = align_rotations(probe, np.concatenate([R, np.eye(3)[None]]),

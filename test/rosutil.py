@@ -32,12 +32,12 @@ RIGID_LAUNCH = ('import sys; from test_pipeline import RigidALS, RigidWarmStart;
 class Feeder:
     """This process's side: publishes ``tracks``, collects ``points`` and ``/diagnostics``."""
 
-    def __init__(self, namespace, keep_points=True, points_depth=POINTS_DEPTH):
+    def __init__(self, namespace, keep_points=True, points_depth=POINTS_DEPTH, tracks_qos=10):
         self.points_received = 0                    # counted even when not kept (load runs)
         self.context = rclpy.Context()
         rclpy.init(context=self.context)
         self.node = rclpy.create_node('feeder', namespace=namespace, context=self.context)
-        self.pub = self.node.create_publisher(PointCloud2, 'tracks', 10)
+        self.pub = self.node.create_publisher(PointCloud2, 'tracks', tracks_qos)
         self.pub_created = time.monotonic()
         self.points, self.diagnostics = [], []
         self.sent_at, self.latencies = {}, []       # stamp -> monotonic sent; seconds
@@ -181,11 +181,12 @@ def stop(proc, sig=signal.SIGINT, timeout=15):
 @contextmanager
 def node_with_feeder(env, log, args=(), *, launch=RIGID_LAUNCH,
                      preexec_fn=None, connect_timeout=30, keep_points=True,
-                     points_depth=POINTS_DEPTH):
+                     points_depth=POINTS_DEPTH, tracks_qos=10, namespace=None):
     """Start the node (``launch``: Python code run with ``-c`` from test/, extra ROS ``args``)
     in a fresh namespace, its output in ``log``; yield ``(process, feeder)`` once they are
-    connected; stop it with SIGINT at the end."""
-    namespace = unique_namespace()
+    connected; stop it with SIGINT at the end. ``tracks_qos``: our tracks writer's QoS (a
+    depth or a profile); ``namespace``: instead of a fresh one."""
+    namespace = namespace or unique_namespace()
     if launch == RIGID_LAUNCH:
         # the rigid stand-in is an iterative ALS in Python: on window + 60 context frames it
         # can take seconds per window and the node then skips windows; these tests are about
@@ -195,7 +196,8 @@ def node_with_feeder(env, log, args=(), *, launch=RIGID_LAUNCH,
         proc = subprocess.Popen(
             [sys.executable, '-c', launch, '--ros-args', '-r', f'__ns:={namespace}', *args],
             cwd=TEST_DIR, env=env, stdout=out, stderr=subprocess.STDOUT, preexec_fn=preexec_fn)
-    feeder = Feeder(namespace, keep_points=keep_points, points_depth=points_depth)
+    feeder = Feeder(namespace, keep_points=keep_points, points_depth=points_depth,
+                    tracks_qos=tracks_qos)
     try:
         assert feeder.wait_for(feeder.connected, connect_timeout), Path(log).read_text()
         yield proc, feeder

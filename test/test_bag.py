@@ -61,7 +61,7 @@ def test_clean_close_gives_metadata_and_summary(tmp_path):
     assert rec.close() is None                                  # idempotent
     meta = yaml.safe_load((tmp_path / 'rec' / 'metadata.yaml').read_text())
     info = meta['rosbag2_bagfile_information']
-    assert info['version'] == 8 and info['storage_identifier'] == 'mcap'
+    assert info['version'] == 9 and info['storage_identifier'] == 'mcap'
     assert info['message_count'] == 50
     assert info['topics_with_message_count'][0]['message_count'] == 50
     with open(tmp_path / 'rec' / 'rec_0.mcap', 'rb') as f:

@@ -14,5 +14,5 @@ def test_flake8():
     pytest.importorskip('flake8_quotes')
     pytest.importorskip('flake8_import_order')
     result = subprocess.run([sys.executable, '-m', 'flake8', 'grass_nrsfm_ros', 'test', 'bench',
-                             'setup.py'], cwd=REPO, capture_output=True, text=True)
+                             'launch', 'setup.py'], cwd=REPO, capture_output=True, text=True)
     assert result.returncode == 0, result.stdout + result.stderr

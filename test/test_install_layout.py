@@ -15,7 +15,8 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 PACKAGE = 'grass_nrsfm_ros'
 COLCON = Path(sys.executable).parent / 'colcon'
-SOURCES = ('setup.py', 'setup.cfg', 'package.xml', 'README.md', 'resource', 'config', PACKAGE)
+SOURCES = ('setup.py', 'setup.cfg', 'package.xml', 'README.md', 'resource', 'config', 'launch',
+           PACKAGE)
 
 
 def copy_package(dest):
@@ -62,6 +63,7 @@ def test_colcon_layout_resolves_like_ros2_run(colcon_install, monkeypatch):
     assert len(ros_run_lookup(prefix)) == 1
     assert (prefix / 'share' / PACKAGE / 'package.xml').is_file()
     assert (prefix / 'share' / PACKAGE / 'config' / 'params.yaml').is_file()
+    assert (prefix / 'share' / PACKAGE / 'launch' / 'grass_nrsfm.launch.py').is_file()
 
 
 def test_installed_node_starts_and_stops_on_sigint(colcon_install, tmp_path):

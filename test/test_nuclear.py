@@ -1,12 +1,16 @@
 """The centred nuclear norm (``nuclear='centred'`` / 'auto', opt-in; the default is the paper's
 'plain'): the mean world shape is left out of the shrinkage, so a narrow range of views no
 longer flattens it."""
+from dataclasses import replace
+
 import numpy as np
 from test_admm import smooth_rotations
 
 from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM, WarmStart
-from grass_nrsfm_ros.nrsfm.admm import _State
+from grass_nrsfm_ros.nrsfm.admm import AdmmState
 from grass_nrsfm_ros.nrsfm.baselines import rigid
+from grass_nrsfm_ros.nrsfm.config import admm_settings
+from grass_nrsfm_ros.nrsfm.schema import solver_defaults
 from grass_nrsfm_ros.nrsfm.synthetic import make_sequence
 
 
@@ -39,10 +43,11 @@ def sharp_state(F, P, nuclear, seed=0):
     rng = np.random.default_rng(seed)
     W = rng.normal(size=(2 * F, P))
     R = smooth_rotations(F, rng)
-    p = GrassmannNRSfM(nuclear=nuclear, spatial=False, temporal=False)._validated()
-    p['nuclear'] = nuclear
+    params = dict(solver_defaults(), nuclear=nuclear, spatial=False, temporal=False,
+                  K_s=1, K_t=1, N_s=3, N_t=3)
+    settings = replace(admm_settings(params, F, P, None, nuclear, spatial=False), gamma=2.0)
     S0 = rng.normal(size=(F, 3, P))
-    return _State(W, R, S0, p, 1, 1, 3, 3, 2.0, None, warm=False), rng
+    return AdmmState(W, R, S0, settings, None, warm=False), rng
 
 
 def test_centred_threshold_keeps_the_mean_row_and_agrees_wide_and_tall():

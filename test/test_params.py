@@ -2,11 +2,14 @@
 node's declared descriptors."""
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from grass_nrsfm_ros import params
+from grass_nrsfm_ros.nrsfm import GrassmannNRSfM, SOLVER_PARAMS
 
 CONFIG = Path(__file__).resolve().parents[1] / 'config' / 'params.yaml'
+README = Path(__file__).resolve().parents[1] / 'README.md'
 
 
 def test_config_file_is_the_rendered_defaults():
@@ -51,34 +54,61 @@ def test_bad_values_name_file_parameter_and_reason(tmp_path, text, message):
     assert str(path) in str(err.value)
 
 
-class TinySolver:
-    """A solver-shaped class, to check the introspection of its parameters."""
-
-    parameter_specs = {'gamma': ('nuclear norm weight', 'float in [0, 1]'),
-                       'K': ('rotation rank', "'auto' or int >= 1"),
-                       'max_iterations': ('iteration cap', 'int >= 1'),
-                       'seed': ('random seed', 'int or None')}
-
-    def __init__(self, gamma=1e-3, K='auto', max_iterations=200, seed=None):
-        pass
-
-
-def test_solver_parameters_from_signature_and_specs():
-    specs = {p.name: p for p in params.solver_params(TinySolver)}
-    assert list(specs) == ['solver.gamma', 'solver.K', 'solver.max_iterations', 'solver.seed']
-    assert specs['solver.gamma'].range == (0.0, 1.0) and specs['solver.gamma'].type is float
-    assert specs['solver.gamma'].description == 'nuclear norm weight [float in [0, 1]]'
-    assert specs['solver.K'].type is None and specs['solver.K'].check(2) == 2
+def test_schema_types_ranges_and_choices():
+    specs = {p.name: p for p in params.all_params()}
+    gamma, K_s, rho = specs['solver.gamma'], specs['solver.K_s'], specs['solver.rho']
+    assert gamma.type is float and gamma.range[0] == 0.0 and gamma.check(0) == 0.0
+    with pytest.raises(ValueError, match=r'solver.gamma=-1.0: outside \[0.0'):
+        gamma.check(-1.0)
+    assert K_s.type is None and K_s.check('auto') == 'auto' and K_s.check(np.int64(3)) == 3
     with pytest.raises(ValueError, match='expected one of'):
-        specs['solver.K'].check('sometimes')
-    assert specs['solver.max_iterations'].type is int
-    assert specs['solver.max_iterations'].range[0] == 1
+        K_s.check('sometimes')
     with pytest.raises(ValueError, match='outside'):
-        specs['solver.max_iterations'].check(0)
-    with pytest.raises(ValueError, match='outside'):
-        specs['solver.gamma'].check(2.0)
-    assert params.solver_kwargs({'solver.gamma': 0.1, 'solver.seed': None, 'window_size': 3}) \
+        K_s.check(0)
+    with pytest.raises(ValueError, match=r'outside \(1.0'):           # rho > 1, open bound
+        rho.check(1.0)
+    assert specs['solver.random_state'].check(None) is None
+    assert specs['solver.nuclear'].group == 'research' and specs['solver.gamma'].group == 'solver'
+    assert params.solver_kwargs({'solver.gamma': 0.1, 'solver.K_s': None, 'window_size': 3}) \
         == {'gamma': 0.1}
+
+
+def test_schema_is_the_solvers_signature():
+    """The solver takes exactly the schema's parameters, with the schema's defaults."""
+    solver = GrassmannNRSfM()
+    assert solver.get_params() == {p.name: p.default for p in SOLVER_PARAMS}
+    assert GrassmannNRSfM.parameter_specs == {p.name: p for p in SOLVER_PARAMS}
+    with pytest.raises(TypeError, match='zeta_weight'):
+        GrassmannNRSfM(zeta_weight=1.0)                  # deleted: it had no effect
+
+
+def test_cross_parameter_rules(tmp_path):
+    path = tmp_path / 'beta.yaml'
+    path.write_text('solver:\n  beta0: 10.0\n  beta_max: 1.0\n')
+    with pytest.raises(ValueError, match='beta_max'):
+        params.load_config(path)
+    with pytest.raises(ValueError, match='window_stride=11 exceeds window_size=10'):
+        params.check_window(window_size=10, window_stride=11)
+
+
+def test_readme_table_is_current():
+    """README.md's parameter table (regenerate: python -m grass_nrsfm_ros.params --readme
+    README.md)."""
+    text = README.read_text()
+    assert params.README_BEGIN in text and params.README_END in text
+    assert params.readme_with_table(text) == text
+
+
+def test_readme_table_rewrite(tmp_path):
+    path = tmp_path / 'README.md'
+    path.write_text(f'# x\n{params.README_BEGIN}\nstale table\n{params.README_END}\nafter\n')
+    params.main(['--readme', str(path)])
+    text = path.read_text()
+    assert 'stale table' not in text and '| `window_size` | `30` | int in [3, 100000] |' in text
+    assert '`gamma`, `smoothness`' in text and 'research switches' in text
+    assert text.endswith(f'{params.README_END}\nafter\n')
+    with pytest.raises(ValueError, match='markers'):
+        params.readme_with_table('no markers')
 
 
 def test_node_declares_parameters_from_the_file(monkeypatch, tmp_path):

@@ -1,51 +1,43 @@
-"""render.py: PNGs decoded back by hand (zlib + struct), views, the render command."""
-import struct
-import zlib
+"""render.py (matplotlib): PNGs read back by matplotlib, views, draw order, the render command
+(with and without matplotlib), and the bench plots."""
+import sys
 
 import numpy as np
 import pytest
 
-from grass_nrsfm_ros import bag, render
-from grass_nrsfm_ros.cli import main
+mpl_image = pytest.importorskip('matplotlib.image')
+from bench import plot  # noqa: E402, I100
+import grass_nrsfm_ros  # noqa: E402
+from grass_nrsfm_ros import bag, render  # noqa: E402
+from grass_nrsfm_ros.cli import main  # noqa: E402
 
 
-def decode_png(path):
-    """``(H, W, 3) uint8`` from an 8-bit RGB, filter-0 PNG (what write_png makes); checks CRCs."""
-    data = open(path, 'rb').read()
-    assert data[:8] == b'\x89PNG\r\n\x1a\n'
-    pos, chunks = 8, {}
-    while pos < len(data):
-        (n,) = struct.unpack('>I', data[pos:pos + 4])
-        tag, body = data[pos + 4:pos + 8], data[pos + 8:pos + 8 + n]
-        (crc,) = struct.unpack('>I', data[pos + 8 + n:pos + 12 + n])
-        assert crc == zlib.crc32(tag + body) & 0xFFFFFFFF, tag
-        chunks[tag] = chunks.get(tag, b'') + body
-        pos += 12 + n
-    w, h, depth, colour, _, _, _ = struct.unpack('>IIBBBBB', chunks[b'IHDR'])
-    assert (depth, colour) == (8, 2) and b'IEND' in chunks
-    rows = np.frombuffer(zlib.decompress(chunks[b'IDAT']), np.uint8).reshape(h, 1 + 3 * w)
-    assert (rows[:, 0] == 0).all()
-    return rows[:, 1:].reshape(h, w, 3)
+def read_png(path):
+    """``(H, W, 3) uint8`` of a PNG file."""
+    img = mpl_image.imread(path)
+    assert img.dtype == np.float32 and img.shape[2] in (3, 4)
+    return np.round(img[..., :3] * 255).astype(np.uint8)
+
+
+def inked(img):
+    """Fraction of pixels that are not white."""
+    return (img < 250).any(axis=2).mean()
 
 
 def test_png_round_trip_is_exact(tmp_path):
     rgb = np.random.default_rng(0).integers(0, 256, (17, 31, 3), dtype=np.uint8)
     render.write_png(tmp_path / 'a.png', rgb)
-    np.testing.assert_array_equal(decode_png(tmp_path / 'a.png'), rgb)
+    assert (tmp_path / 'a.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+    np.testing.assert_array_equal(read_png(tmp_path / 'a.png'), rgb)
     with pytest.raises(ValueError, match='H, W, 3'):
         render.write_png(tmp_path / 'b.png', rgb[..., 0])
 
 
-def test_splat_draws_nearest_point_on_top_and_colours_by_depth():
-    # two points at the same (x, y): the near one (z=1) must win the pixel
-    xyz = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 5.0], [1.0, 1.0, 5.0]]).T
-    img = render.splat(xyz, size=64, radius=3, extent=(np.zeros(3), 2.0))
-    c = img[32, 32].astype(int)
-    near, far = render.colormap(np.array([0.0, 1.0])).astype(int)
-    assert np.abs(c - near).sum() < np.abs(c - far).sum()
-    far_px = img[32 + 14, 32 + 14].astype(int)          # (1, 1) at scale 0.45*64/2
-    assert np.abs(far_px - far).sum() < np.abs(far_px - near).sum()
-    assert (img[0, 0] == 255).all()
+def test_nearest_points_are_drawn_last():
+    xyz = np.array([[0.0, 0.0, 5.0], [0.0, 0.0, 1.0], [1.0, 1.0, 3.0], [np.nan, 0, 0]]).T
+    assert list(render.draw_order(xyz, 'front')) == [0, 2, 1]          # far z first, NaN out
+    assert list(render.draw_order(xyz, 'side')) == [0, 1, 2]           # seen from +x: x=1 last
+    assert list(render.draw_order(xyz, 'top')) == [2, 0, 1]            # from -y: y=0 last
 
 
 def test_views_are_not_mirrored():
@@ -56,17 +48,17 @@ def test_views_are_not_mirrored():
         assert np.isclose(np.linalg.det(R), 1.0), name
 
 
-def test_frame_figure_and_plot_have_content(tmp_path):
+def test_frame_figure_has_a_panel_per_view_and_cloud():
     rng = np.random.default_rng(1)
     S = rng.normal(size=(3, 200))
-    img = render.frame_figure(S, S + 0.01, title='frame 0', size=100)
-    assert img.shape[1] == 14 + 3 * 104 and img.shape[0] > 2 * 100
-    assert (img != 255).any(axis=2).mean() > 0.05
-    x = np.arange(5)
-    p = render.plot({'a': (x, x ** 2), 'b': (x, 3 * x)}, 'title', 'x', 'y', size=(200, 300))
-    assert p.shape == (200, 300, 3)
-    dark = (p.sum(axis=2) < 200).sum()
-    assert dark > 300                                   # axes, ticks and text are drawn
+    both = render.frame_figure(S, S + 0.01, title='frame 0', size=100)
+    one = render.frame_figure(S, None, size=100, views=('front',))
+    assert both.dtype == np.uint8 and both.shape[2] == 3
+    assert both.shape[1] > 3 * 100 and both.shape[0] > 2 * 100
+    assert one.shape[0] < both.shape[0] and one.shape[1] < both.shape[1]
+    assert inked(both) > 0.05
+    with pytest.raises(ValueError, match='nothing to draw'):
+        render.frame_figure(None, None)
 
 
 def test_render_command_npz_and_bag(tmp_path, capsys):
@@ -76,23 +68,34 @@ def test_render_command_npz_and_bag(tmp_path, capsys):
     S_est = 2.0 * S_gt * np.tile([[-1.0], [1.0], [1.0]], (F, 1))      # mirrored, scaled
     np.savez(tmp_path / 'r.npz', S=S_est, S_gt=S_gt)
     assert main(['render', str(tmp_path / 'r.npz'), '--frame', '2', '-o',
-                 str(tmp_path / 'one.png'), '--size', '120']) == 0
-    one = decode_png(tmp_path / 'one.png')
-    assert one.shape[1] == 14 + 3 * 124
-    assert (one != 255).any(axis=2).sum() > 1000
+                 str(tmp_path / 'one.png'), '--size', '120', '--units', 'm']) == 0
+    one = read_png(tmp_path / 'one.png')
+    assert one.shape[1] > 3 * 120 and one.shape[0] > 2 * 120     # 3 views x (estimate, truth)
+    assert inked(one) > 0.05
     assert main(['render', str(tmp_path / 'r.npz'), '--every', '2', '-o',
                  str(tmp_path / 'sheet.png'), '--columns', '2']) == 0
-    sheet = decode_png(tmp_path / 'sheet.png')
+    sheet = read_png(tmp_path / 'sheet.png')
     assert sheet.shape[0] > sheet.shape[1] / 2            # 3 frames, 2 columns -> 2 rows
 
     W = S_gt[np.sort(np.r_[0:3 * F:3, 1:3 * F:3])]
     bag.tracks_bag_from_arrays(W, np.arange(F) * 10, tmp_path / 'b', S=S_gt)
     assert main(['render', str(tmp_path / 'b'), '--frame', '5', '-o',
                  str(tmp_path / 'gt.png')]) == 0
-    assert (decode_png(tmp_path / 'gt.png') != 255).any(axis=2).sum() > 1000
+    assert inked(read_png(tmp_path / 'gt.png')) > 0.02
     assert main(['render', str(tmp_path / 'r.npz'), '--frame', '6', '-o',
                  str(tmp_path / 'x.png')]) == 2
     assert 'outside 0..5' in capsys.readouterr().err
+
+
+def test_render_without_matplotlib_says_how_to_install_it(tmp_path, capsys, monkeypatch):
+    np.savez(tmp_path / 'r.npz', S=np.zeros((3, 4)))
+    monkeypatch.delitem(sys.modules, 'grass_nrsfm_ros.render')
+    monkeypatch.delattr(grass_nrsfm_ros, 'render')
+    monkeypatch.setitem(sys.modules, 'matplotlib', None)       # import matplotlib fails
+    assert main(['render', str(tmp_path / 'r.npz'), '-o', str(tmp_path / 'x.png')]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "pip install 'grass_nrsfm_ros[plot]'" in err
+    assert not (tmp_path / 'x.png').exists()
 
 
 def test_estimate_is_aligned_to_truth_before_drawing():
@@ -105,3 +108,26 @@ def test_estimate_is_aligned_to_truth_before_drawing():
     e, t, err = aligned_pair((0, ids[::-1], est[:, ::-1]), (0, ids, truth))   # ids permuted
     assert err < 1e-9
     np.testing.assert_allclose(e, t, atol=1e-9)
+
+
+def test_bench_plots_are_pngs_with_content(tmp_path):
+    x = np.arange(1, 6)
+    assert plot.line_plot(tmp_path / 'l.png', {'a': (x, x ** 2), 'b': (x, 3 * x)}, 'title',
+                          'x (frames)', 'y (s)', logy=True, logx=True) == tmp_path / 'l.png'
+    line = read_png(tmp_path / 'l.png')
+    assert line.shape[:2] == (360, 560) and inked(line) > 0.02
+    assert plot.line_plot(tmp_path / 'none.png', {'a': ([], [])}) is None
+    plot.bar_plot(tmp_path / 'b.png', {'one': 0.0, 'two': 2.5}, 'bars', 'lost (%)')
+    assert inked(read_png(tmp_path / 'b.png')) > 0.02
+    plot.matrix_image(tmp_path / 'm.png', np.eye(20), scale=10)
+    assert inked(read_png(tmp_path / 'm.png')) > 0.02
+
+
+def test_mesh_figure_draws_a_marker_triangle_list():
+    from grass_nrsfm_ros import mesh
+
+    g = np.stack(np.meshgrid(np.linspace(-1, 1, 8), np.linspace(-1, 1, 8)), -1).reshape(-1, 2)
+    xyz = np.c_[g, 0.3 * g[:, 0] ** 2]
+    vertices, colours = mesh.triangle_list(xyz, mesh.triangulate(g))
+    img = render.mesh_figure(vertices, colours, size=(300, 400))
+    assert img.shape == (300, 400, 3) and inked(img) > 0.1

@@ -48,7 +48,8 @@ def streaming(seq, tracks_bag, points_bag):
     """Run the node's pipeline over ``tracks_bag`` offline; print the streaming e3D."""
     from grass_nrsfm_ros import bag
     from grass_nrsfm_ros.nrsfm import e3d
-    from grass_nrsfm_ros.params import defaults, make_pipeline
+    from grass_nrsfm_ros.params import defaults
+    from grass_nrsfm_ros.live import make_pipeline
 
     pipeline = make_pipeline(defaults())
     report = bag.reconstruct_bag(tracks_bag, points_bag, pipeline, progress=None)
@@ -62,12 +63,14 @@ def streaming(seq, tracks_bag, points_bag):
 
 
 def picture(result, seq, path):
+    from grass_nrsfm_ros.commands.render import renderer
     from grass_nrsfm_ros.nrsfm.metrics import procrustes_align
-    from grass_nrsfm_ros.render import frame_figure, write_png
 
+    render = renderer()
     last = slice(3 * (seq.n_frames - 1), 3 * seq.n_frames)
     estimate, truth = procrustes_align(result.S[last], seq.S[last])
-    write_png(path, frame_figure(estimate, truth, title=f'{seq.name}: last frame'))
+    render.write_png(path, render.frame_figure(estimate, truth,
+                                               title=f'{seq.name}: last frame'))
 
 
 def run(args):

@@ -123,7 +123,8 @@ def reconstruct_bag_file(args):
     import shutil
 
     from grass_nrsfm_ros import bag
-    from grass_nrsfm_ros.params import load_config, make_pipeline
+    from grass_nrsfm_ros.params import load_config
+    from grass_nrsfm_ros.live import make_pipeline
 
     config = load_config(args.config) if args.config else {}
     known = bag.topics(args.input)                      # corrupt bags fail here, before output

@@ -6,7 +6,7 @@ latest wins) and ``/ground_truth`` (written by ``convert``) the truth, matched b
 track id. ``--gt`` takes the truth from another .npz (its ``S``) or bag instead. A source with
 only ground truth draws that alone. With ground truth, each estimate is aligned to it per frame
 (Procrustes with scale, reflection allowed: NRSfM recovers shape up to these) and the title
-gives the frame's e3D.
+gives the frame's e3D. Needs matplotlib (``pip install 'grass_nrsfm_ros[plot]'``).
 """
 from pathlib import Path
 
@@ -14,6 +14,19 @@ import numpy as np
 
 from grass_nrsfm_ros.cli import UserError
 from grass_nrsfm_ros.commands.npz import opened
+
+PLOT_HINT = "pictures need matplotlib: pip install 'grass_nrsfm_ros[plot]'"
+
+
+def renderer():
+    """:mod:`grass_nrsfm_ros.render`, or a UserError saying in one line how to get matplotlib."""
+    try:
+        from grass_nrsfm_ros import render
+    except ModuleNotFoundError as exc:
+        if (exc.name or '').split('.')[0] != 'matplotlib':
+            raise
+        raise UserError(PLOT_HINT) from None
+    return render
 
 
 def add_arguments(parser):
@@ -27,6 +40,7 @@ def add_arguments(parser):
     parser.add_argument('--gt-topic', default='/ground_truth', help='ground-truth topic')
     parser.add_argument('--size', type=int, default=240, help='pixels per view (240)')
     parser.add_argument('--columns', type=int, default=4, help='contact sheet columns (4)')
+    parser.add_argument('--units', default='', help="axis units, e.g. 'm' (none)")
 
 
 def frames_from_npz(path, key):
@@ -73,10 +87,9 @@ def aligned_pair(est, truth):
     return aligned + Y.mean(axis=1, keepdims=True), Y, e3d(X, Y, scale=True)
 
 
-def figure(k, est_frames, gt_frames, size, views=('front', 'side', 'top')):
+def figure(k, est_frames, gt_frames, size, views=('front', 'side', 'top'), units=''):
     """The figure of the k-th frame (estimate order, or truth order when there is none)."""
-    from grass_nrsfm_ros.render import frame_figure
-
+    frame_figure = renderer().frame_figure
     main = est_frames if est_frames is not None else gt_frames
     key, _, _ = main[k]
     est = est_frames[k] if est_frames is not None else None
@@ -91,14 +104,13 @@ def figure(k, est_frames, gt_frames, size, views=('front', 'side', 'top')):
         e, t, err = aligned_pair(est, truth)
         if err is not None:
             title += f'  e3D {err:.3f}'
-        return frame_figure(e, t, title, size, views)
+        return frame_figure(e, t, title, size, views, units)
     return frame_figure(est[2] if est is not None else None,
-                        truth[2] if truth is not None else None, title, size, views)
+                        truth[2] if truth is not None else None, title, size, views, units)
 
 
 def run(args):
-    from grass_nrsfm_ros.render import contact_sheet, write_png
-
+    render = renderer()
     est, truth = load(args.source, points_topic=args.points_topic, gt_topic=args.gt_topic)
     if args.gt:
         truth = (frames_from_npz(args.gt, 'S') if Path(args.gt).suffix == '.npz'
@@ -111,12 +123,13 @@ def run(args):
     n = len(est if est is not None else truth)
     if args.every > 0:
         frames = list(range(0, n, args.every))
-        images = [figure(k, est, truth, args.size // 2, ('front', 'side')) for k in frames]
-        write_png(args.output, contact_sheet(images, args.columns))
+        images = [figure(k, est, truth, args.size // 2, ('front', 'side'), args.units)
+                  for k in frames]
+        render.write_png(args.output, render.contact_sheet(images, args.columns))
         print(f'{args.output}: {len(frames)} frames (every {args.every} of {n})')
         return 0
     if not 0 <= args.frame < n:
         raise UserError(f'--frame {args.frame} outside 0..{n - 1}')
-    write_png(args.output, figure(args.frame, est, truth, args.size))
+    render.write_png(args.output, figure(args.frame, est, truth, args.size, units=args.units))
     print(f'{args.output}: frame {args.frame} of {n}')
     return 0

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .synthetic import _streams, _times, camera_rotations, observe
+from .synthetic import camera_rotations, frame_times, observe, random_streams
 
 ENV_MODEL = 'GRASS_NRSFM_FACE_MODEL'
 ENV_DATA = 'GRASS_NRSFM_DATA'
@@ -114,7 +114,7 @@ def expression_weights(n_expressions, n_frames, rng, peak=1.5):
     """Smooth expression weights ``(F, E)`` in [0, peak): each expression rises and falls in
     two Gaussian bumps with random centres, widths and heights, so several blend at once; the
     sum saturates smoothly as ``peak * tanh(sum / peak)``."""
-    t = _times(n_frames)[:, None, None]                        # (F, 1, 1)
+    t = frame_times(n_frames)[:, None, None]                   # (F, 1, 1)
     n_bumps = 2
     centres = rng.uniform(-0.1, 1.1, (1, n_expressions, n_bumps))
     widths = rng.uniform(0.08, 0.25, (1, n_expressions, n_bumps))
@@ -136,7 +136,7 @@ def make_face_sequence(n_frames=99, n_points=28880, *, model=None, noise=0.0, se
     """
     if not isinstance(model, FaceModel):
         model = load_face_model(model)
-    rng_points, rng_camera, rng_translation, rng_noise = _streams(seed)
+    rng_points, rng_camera, rng_translation, rng_noise = random_streams(seed)
     rng_identity, rng_expression = (np.random.default_rng(s) for s in
                                     np.random.SeedSequence([seed, 1]).spawn(2))
     k = int(identity_components)

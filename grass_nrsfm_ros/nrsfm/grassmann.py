@@ -17,8 +17,7 @@ Functions (shapes in their docstrings): :func:`projection_kernel`, :func:`c_upda
 :func:`contiguous_blocks`, :func:`move_block_boundaries`.
 """
 import numpy as np
-
-from .measurement import nearest_rotation
+from sklearn.cluster import KMeans, MiniBatchKMeans
 
 
 def projection_kernel(cross, sizes, delta=1e-8):
@@ -132,41 +131,6 @@ def zeta(S, edges, rank, weight=1.0, bases=None):
     return S
 
 
-def rigid_projection(S, F, weight=1.0, steps=3, similarity=False, axes=None):
-    """Pull a column group ``S: (3F, n)`` (rows 3f..3f+2 = frame f) towards its best locally
-    rigid motion, in place: ``S_f <- S_f - weight (S_f - (Q_f M + t_f))`` with ``t_f`` the
-    group's centroid, ``M: (3, n)`` a rest shape and ``Q_f`` rotations (det +1), fitted by
-    ``steps`` alternations of per-frame Procrustes and averaging. ``similarity``: the motion
-    is ``s_f Q_f M + t_f`` with a least-squares scale ``s_f >= 0`` per frame. ``axes: (F, 3)``
-    unit vectors: S_f moves only along ``axes[f]`` (the camera's depth axis: the image
-    coordinates stay as they are). Returns ``S``."""
-    group = S.reshape(F, 3, -1)
-    X = group.astype(np.float64)
-    t = X.mean(axis=2, keepdims=True)
-    X -= t
-    M = X.mean(axis=0)
-    scale = np.ones((F, 1, 1))
-    for _ in range(steps):
-        Q = nearest_rotation(X @ M.T)                           # (F, 3, 3)
-        QtX = np.matmul(Q.transpose(0, 2, 1), X)
-        if similarity:
-            scale = np.einsum('fij,ij->f', QtX, M)[:, None, None] / max(np.vdot(M, M), 1e-300)
-            scale = np.maximum(scale, 0.0)
-            M = (scale * QtX).sum(axis=0) / max(float((scale ** 2).sum()), 1e-300)
-        else:
-            M = QtX.mean(axis=0)
-    if similarity:                                              # least-squares scale of Q_f M
-        QtX = np.matmul(Q.transpose(0, 2, 1), X)
-        scale = np.maximum(np.einsum('fij,ij->f', QtX, M), 0.0)[:, None, None] / max(
-            np.vdot(M, M), 1e-300)
-    X -= scale * np.matmul(Q, M)                                # X = S_f - t_f - s_f Q_f M
-    if axes is not None:
-        X = axes[:, :, None] * np.einsum('fc,fcn->fn', axes, X)[:, None, :]
-    X *= weight
-    group -= X.astype(S.dtype, copy=False)
-    return S
-
-
 def reduced_features(S, dims, random_state=None):
     """PCA of the trajectories (columns of ``S: (D, P)``) through the ``D x D`` Gram matrix.
 
@@ -182,7 +146,6 @@ def initial_groups(S, K, random_state=0, dims=20):
 
     Returns labels ``(P,)`` in ``0..K-1`` (every label used). MiniBatchKMeans above 20k points.
     """
-    from sklearn.cluster import KMeans, MiniBatchKMeans
     P = S.shape[1]
     if K <= 1:
         return np.zeros(P, dtype=np.int64)

@@ -2,42 +2,25 @@
 
 A surface that bends without stretching (paper, cloth, a hinged panel) keeps the length
 ``l_e`` of every short edge ``e = (i, j)`` between neighbouring points. An orthographic camera
-shows the edge foreshortened, ``|dxy_e^f| = l_e cos(theta_e^f)``, so the longest image length
-over the sequence bounds ``l_e`` and equals it where the edge faces the camera in some frame
-(the maximum-depth heuristic, here without a template; a high quantile rather than the
-maximum, for noise). An edge that never faces the camera (a steep flank) is longer than all
-its images; there the solver's own 3D length (its median over the frames) is the larger and
-is taken. Each frame's depth differences then follow from the data:
-``|z_i - z_j| = sqrt(l_e^2 - |dxy_e^f|^2)``. Only their signs are unknown; they come from the
-solver's depths, then from the refined depths (a few sweeps). Each frame's depths are the
-least-squares integration of these differences over the neighbour graph (one sparse
-``P x P`` Laplacian factor for all frames), weakly anchored to the solver's depths. ``x, y``
-stay the data's.
+shows the edge foreshortened, ``|dxy_e^f| = l_e cos(theta_e^f)``, so a high quantile of the
+image lengths over the sequence bounds ``l_e`` (where the edge never faces the camera, the
+solver's own 3D length, the larger, is taken). Each frame's depth differences then follow from
+the data, ``|z_i - z_j| = sqrt(l_e^2 - |dxy_e^f|^2)``; their signs come from the solver's
+depths, then from the refined ones (a few sweeps). Each frame's depths are the least-squares
+integration of these differences over the neighbour graph (one sparse ``P x P`` Laplacian
+factor for all frames), weakly anchored to the solver's depths; ``x, y`` stay the data's.
 
-Given the rotations, the signs are then re-estimated against the other frames
-(``sign_rounds``): the refined shapes are taken to the world frame, the world S# is projected
-onto its mean plus its top ``SIGN_RANK`` = 2 components, and each frame is integrated again
-with the signs of that projection's depths (then one more sweep). A frame whose signs
-disagree with what the rest of the sequence implies is pulled back to the consensus; the
-magnitudes stay the data's. Measured on the 36 synthetic cases (5 kinds x orbit / wobble /
-shaky x seeds 0-2, 60 x 500) where 'auto' refines, against the sweeps alone: geometric mean of
-the e3D ratios 0.85 (rank 2), 0.91 (rank 3), 0.85 (rank 1, but worse on 5), 0.86 (rank =
-K_rot); 2 rounds without the extra sweep 0.88, 6 rounds with 3 sweeps 0.84 (at 3x the cost).
-Examples: articulated shaky 2 0.024 -> 0.008, twisting orbit 0 0.087 -> 0.061, bending shaky
-0 0.101 -> 0.067; worse (by 3-5 %) twisting wobble 1 / 2. The rounds do not fix the waving
-cloth (0.23 -> 0.22-0.24): started from the ground-truth depths they drift to 0.14 with the
-solver's rotations, and from the rigid shape's depths they reach 0.17-0.19, but the
-projection residual that would pick that start prefers the rigid start on twisting too
-(0.51).
+Given the rotations, the signs are re-estimated against the other frames (``sign_rounds``):
+the refined world shapes are projected onto their mean plus their top SIGN_RANK components,
+and each frame is integrated again with the signs of that projection's depths.
 
-Whether a sequence's surface is inextensible is judged by what the refinement achieves:
-``length_variation`` (temporal std over mean of the 3D edge lengths) drops to 0.05-0.5 of the
-solver's on bending, twisting and hinged sheets, but only to 0.68-0.92 on the dense faces and
-the inflating surface, whose stretching no depth can undo. The solver's ``'auto'`` mode uses
-that ratio (admm.py, with the measurements).
+:func:`length_variation` (temporal std over mean of the 3D edge lengths) measures how far a
+reconstruction is from inextensible; the solver's refinement stage compares it before and
+after (:mod:`.stages.refinement`). :func:`register_rotations` re-estimates rotations from
+refined shapes (:mod:`.stages.registration`).
 
-Shapes: ``S: (3F, P)`` camera frame, ``W: (2F, P)``; edges ``i, j: (E,)``. Memory stays
-O(F P + F E) in frame / edge chunks; nothing is P x P but the sparse Laplacian.
+Shapes: ``S: (3F, P)`` camera frame, ``W: (2F, P)``, ``R: (F, 3, 3)``; edges ``i, j: (E,)``.
+Memory stays O(F P + F E) in frame / edge chunks; nothing is P x P but the sparse Laplacian.
 """
 import numpy as np
 import scipy.sparse as sp
@@ -45,7 +28,7 @@ from scipy.sparse.linalg import splu
 from sklearn.neighbors import NearestNeighbors
 
 from .measurement import as_frames, from_frames, nearest_rotation, validate_rotations
-from .rotation import _normalised_svd
+from .rotation import normalised_svd
 
 #: neighbours per point in the edge graph
 NEIGHBOURS = 8
@@ -81,7 +64,7 @@ def trajectory_embedding(W, dims=EMBED_DIMS):
     """``(P, n)``: the tracks of ``W: (2F, P)`` as points in the space of their leading ``n =
     min(dims, rank)`` principal components (the rotation step's SVD of the centred, unit-RMS
     tracks); nearby points are nearby on the surface."""
-    _, d, Vt, _, _ = _normalised_svd(W)
+    _, d, Vt, _, _ = normalised_svd(W)
     n = min(dims, d.size)
     return (d[:n, None] * Vt[:n]).T
 

@@ -68,7 +68,7 @@ def _svd_via_gram(Wn):
     return U, d, Vt
 
 
-def _normalised_svd(W):
+def normalised_svd(W):
     """Centre and scale ``W: (2F, P)``.
 
     Returns ``(U (2F, r), d (r,), Vt (r, P), Wn (2F, P), scale)`` with signs fixed and
@@ -217,7 +217,7 @@ def _refine(G0, Pi):
 
 # ----------------------------------------------------------------------------- rotations
 
-def _rotations_from_rows(M):
+def rotations_from_rows(M):
     """``M: (F, 2, 3)`` camera rows (any scale) -> ``(R: (F, 3, 3), ok: (F,) bool)``.
 
     Each 2x3 block goes to the nearest matrix with orthonormal rows; the third row is their
@@ -255,6 +255,25 @@ def step_angles(R):
     return np.degrees(np.arccos(cosang))
 
 
+def align_rotations(R_est, R_known, known):
+    """Align estimated rotations ``(F, 3, 3)`` to given ones on the ``known: (F,)`` frames.
+
+    Finds the world rotation Q (and whether to use the orthographic depth-flip twin
+    ``D R D``, D = diag(1, 1, -1)) minimising ``sum_known ||R_est_f Q - R_known_f||^2``; returns
+    the aligned estimates with the known frames replaced by the given rotations.
+    """
+    D = np.diag([1.0, 1.0, -1.0])
+    best, best_err = None, np.inf
+    for cand in (R_est, D @ R_est @ D):
+        M = np.einsum('fji,fjk->ik', cand[known], R_known[known])
+        Q = nearest_rotation(M)
+        err = np.linalg.norm(cand[known] @ Q - R_known[known])
+        if err < best_err:
+            best, best_err = cand @ Q, err
+    best[known] = R_known[known]
+    return best
+
+
 def rotation_spread(R):
     """Mean angle (degrees) of the rotations ``R: (F, 3, 3)`` from their mean (the rotation
     nearest to their average): how far the camera turns over the sequence."""
@@ -265,7 +284,7 @@ def rotation_spread(R):
 
 def _rotations_from_triple(Pi, G):
     """Rotations from ``Pi: (2F, n)`` and one column triple ``G: (n, 3)``."""
-    R, ok = _rotations_from_rows(as_frames(Pi @ G, 2))
+    R, ok = rotations_from_rows(as_frames(Pi @ G, 2))
     return sign_continuity(R), ok
 
 
@@ -281,7 +300,7 @@ def _world_shape(R, Wn):
 
 def _rigid(W):
     """Tomasi-Kanade. Returns ``(R, S camera frame in W's units, info dict)``."""
-    U, d, Vt, Wn, scale = _normalised_svd(W)
+    U, d, Vt, Wn, scale = normalised_svd(W)
     F = Wn.shape[0] // 2
     info = {'energy': float((d[:3] ** 2).sum() / (d ** 2).sum())}
     rank = int((d > RANK_TOL * d[0]).sum())
@@ -345,7 +364,7 @@ def rotations_for_rank(W, K, *, random_state=0, n_starts=N_STARTS, warm=None, _s
     factorisation uses rank r and the null space is taken numerically.
     Returns ``(R: (F, 3, 3), G: (r, 3), diagnostics dict)``. Raises ValueError if infeasible.
     """
-    U, d, Vt, Wn, _ = _svd if _svd is not None else _normalised_svd(W)
+    U, d, Vt, Wn, _ = _svd if _svd is not None else normalised_svd(W)
     n = min(3 * K, _numerical_rank(d))
     if n <= 3 * K - 3 or n < 3:
         raise ValueError(f'W has numerical rank {_numerical_rank(d)} <= 3(K-1) = {3 * K - 3}')
@@ -391,7 +410,7 @@ def estimate_rotations(W, K='auto', *, candidates=DEFAULT_CANDIDATES, random_sta
     :func:`choose_rank`. Degenerate input falls back to :func:`rigid_factorisation` with the
     reason in ``scores['fallback']``. Returns a :class:`RotationEstimate`.
     """
-    svd = _normalised_svd(W)
+    svd = normalised_svd(W)
     F, P = svd[3].shape[0] // 2, svd[3].shape[1]
     if K == 'auto':
         wanted = sorted(k for k in set(int(c) for c in candidates) if k >= 1)

@@ -271,17 +271,17 @@ def camera_rotations(motion, n_frames, rng):
     :func:`camera_motions`), drawn from the generator ``rng``."""
     if motion not in _CAMERAS:
         raise ValueError(f'unknown camera motion {motion!r}; choose from {camera_motions()}')
-    return rotations_from_angles(*_CAMERAS[motion](rng, _times(n_frames)))
+    return rotations_from_angles(*_CAMERAS[motion](rng, frame_times(n_frames)))
 
 
-def _times(n_frames):
+def frame_times(n_frames):
     return np.linspace(0.0, 1.0, n_frames) if n_frames > 1 else np.zeros(1)
 
 
 # ---------------------------------------------------------------------------------------------
 # Assembly
 
-def _streams(seed):
+def random_streams(seed):
     """Independent generators for points, camera, translation and noise."""
     return [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(4)]
 
@@ -299,7 +299,7 @@ def observe(name, S_world, R, *, noise=0.0, translation=0.0, rng_translation, rn
     F = R.shape[0]
     clean = from_frames(as_frames(S, 3)[:, :2, :])
     extent = float(np.abs(centre(clean)[0]).max())
-    t = _times(F)
+    t = frame_times(F)
     shift = np.stack([_smooth_random(rng_translation, t, translation * extent)
                       for _ in range(2)], axis=1).reshape(2 * F, 1)
     sigma = float(noise) * extent
@@ -334,12 +334,12 @@ def make_sequence(kind, n_frames=60, n_points=2000, *, noise=0.0, camera='orbit'
         raise ValueError(f'need n_frames >= 1 and n_points >= 1; got {n_frames}, {n_points}')
     if not 0.0 <= clustered <= 1.0:
         raise ValueError(f'clustered must be a share in [0, 1]; got {clustered!r}')
-    rng_points, rng_camera, rng_translation, rng_noise = _streams(seed)
+    rng_points, rng_camera, rng_translation, rng_noise = random_streams(seed)
     uv = rng_points.random((n_points, 2))
     n = int(round(clustered * n_points))
     for corner, patch in zip(_CLUSTER_CORNERS, (slice(0, n // 2), slice(n // 2, n))):
         uv[patch] = corner + _CLUSTER_SIDE * uv[patch]
-    S_world = from_frames(_KINDS[kind](uv, _times(n_frames)))
+    S_world = from_frames(_KINDS[kind](uv, frame_times(n_frames)))
     R = camera_rotations(camera, n_frames, rng_camera)
     meta = {'generator': __name__, 'kind': kind, 'camera_motion': camera, 'seed': seed,
             'clustered': float(clustered)}

@@ -18,17 +18,12 @@ rank-3K factorisation (:func:`.rotation.rotations_for_rank` with the trajectory 
 the rank W supports). Any ``R: (F, 3, 3)`` can also be passed (e.g. ground truth or
 :func:`.rotation.estimate_rotations`).
 
-Measured on the mocap sets (Akhter's metric, K chosen against ground truth; published PTA in
-brackets, OP Tab. 2): with rigid rotations drink 0.247 (0.025), pickup 0.411 (0.237), yoga 0.613
-(0.162), dance 0.527 (0.296), face 0.055 (0.044), shark 0.191 (0.180); with Dai's rotations
-(``R=estimate_rotations(W).R``) 0.020, 0.077, 0.039, 0.238, 0.045, 0.179. The rigid camera is
-far off on Akhter's four sequences, so the benchmarks report both.
-
 Conventions (:mod:`.measurement`): ``W: (2F, P)``, ``S: (3F, P)`` camera frame,
 ``R: (F, 3, 3)`` world to camera.
 """
 import numpy as np
 
+from . import rotation
 from .measurement import (as_frames, centre, from_frames, InvalidInputError, validate_rotations,
                           validate_tracks)
 
@@ -84,8 +79,6 @@ def shapes_from_coefficients(A, R, theta):
 
 def _rotations(W, K, rotations):
     """``R: (F, 3, 3)`` by the named rule (see the module docstring)."""
-    from . import rotation
-
     if rotations == 'rigid':
         return rotation.rigid_factorisation(W)[0]
     if rotations == 'akhter':

@@ -1,0 +1,57 @@
+"""From validated parameters to one ADMM solve's :class:`~.admm.AdmmSettings`.
+
+``params``: the dict :func:`.schema.validate_solver` returns. The validated parameters are
+never changed; each solve gets its own settings (sizes resolved from ``(F, P)``, the spatial
+branch switched off where a single group would remain, gamma made absolute).
+"""
+import numpy as np
+
+from .admm import AdmmSettings
+
+#: points per spatial group that 'auto' K_s aims at, in units of N_s + 1
+POINTS_PER_GROUP = 20
+
+
+def sizes(params, F, P, groups):
+    """``(K_s, K_t, N_s, N_t)``: the given values, or 'auto' resolved from ``(F, P)``:
+    ``N_s = min(3F - 1, 5)``, ``K_s = clip(P / (20 (N_s + 1)), 1, 20)`` (the number of given
+    ``groups: (P,)`` when there are some), ``K_t = clip(round(F / 20), 1, 10)``,
+    ``N_t = min(3, F // K_t)``."""
+    N_s = params['N_s'] if params['N_s'] != 'auto' else int(min(3 * F - 1, 5))
+    if groups is not None:
+        K_s = int(len(np.unique(groups)))
+    elif params['K_s'] != 'auto':
+        K_s = params['K_s']
+    else:
+        K_s = int(np.clip(P // (POINTS_PER_GROUP * (N_s + 1)), 1, 20))
+    K_s = max(1, min(K_s, P // (N_s + 1)))
+    K_t = params['K_t'] if params['K_t'] != 'auto' else int(np.clip(round(F / 20), 1, 10))
+    K_t = max(1, min(K_t, F))
+    N_t = params['N_t'] if params['N_t'] != 'auto' else int(min(3, F // K_t))
+    return K_s, K_t, N_s, N_t
+
+
+def spatial_off_reason(params, K_s, N_s, P, groups):
+    """Why the spatial branch is off for this solve although asked for, or None: 'auto' K_s
+    left one group, which would make zeta_s a global rank-N_s constraint."""
+    if not (params['spatial'] and K_s == 1 and params['K_s'] == 'auto'):
+        return None
+    if groups is not None:
+        return 'init.groups hold one group'
+    return (f'P={P} is too few points for K_s >= 2 groups of > '
+            f'{POINTS_PER_GROUP * (N_s + 1)} points')
+
+
+def admm_settings(params, F, P, groups, nuclear, spatial):
+    """The :class:`AdmmSettings` of a solve of ``F`` frames and ``P`` tracks with the norm
+    ``nuclear`` ('centred' or 'plain') and the spatial branch on or off."""
+    K_s, K_t, N_s, N_t = sizes(params, F, P, groups)
+    return AdmmSettings(
+        gamma=params['gamma'] * np.sqrt(F * P), lambda1=params['lambda1'],
+        lambda2=params['lambda2'], lambda3=params['lambda3'], lambda4=params['lambda4'],
+        sigma_eps=params['sigma_eps'], affinity_min=params['affinity_min'],
+        regroup_every=params['regroup_every'], delta=params['delta'], rho=params['rho'],
+        beta0=params['beta0'], beta_max=params['beta_max'], warm_beta0=params['warm_beta0'],
+        smoothness=params['smoothness'], spatial=spatial, temporal=params['temporal'],
+        centred=nuclear == 'centred', random_state=params['random_state'],
+        max_iter=params['max_iter'], K_s=K_s, K_t=K_t, N_s=N_s, N_t=N_t)

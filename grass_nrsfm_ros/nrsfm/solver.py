@@ -1,0 +1,197 @@
+"""The estimator: :class:`GrassmannNRSfM`, Algorithm 1 (:mod:`.admm`) in its chain of stages.
+
+``GrassmannNRSfM(**params).fit(W, init=None, progress=None) -> NRSfMResult`` with
+``W: (2F, P)`` tracks; ``NRSfMResult.S: (3F, P)`` camera-frame shapes, ``R: (F, 3, 3)``,
+``translation: (2F, 1)``, ``groups: (P,)`` spatial labels, ``report: SolverReport``.
+
+The chain (:meth:`GrassmannNRSfM.fit`): rotations -> rotation check -> the shape pass
+(:func:`shape_pass`: thinning -> ADMM -> refinement -> fill) -> registration (the shape pass
+again with registered rotations). The parameters are declared in :mod:`.schema`; each ADMM
+solve gets its own settings (:mod:`.config`), the validated parameters are never changed.
+"""
+import time
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from . import config
+from .admm import AdmmRun, AdmmState, run, Timer
+from .measurement import from_frames, InvalidInputError
+from .problem import initial_shapes, NRSfMResult, Problem, SolverReport
+from .schema import SOLVER_PARAMS, SOLVER_SPECS, validate_solver
+from .stages import fill, refinement, registration, rotation_check, rotations, thinning
+
+#: BLAS threads inside fit: the rotation step, the initialisation and the iterations make
+#: thousands of small BLAS calls, faster on one thread, and the thread count changes rounding
+BLAS_THREADS = 1
+
+
+class GrassmannNRSfM:
+    """Dense NRSfM on the Grassmannian (Kumar et al. CVPR 2018, Algorithm 1).
+
+    Keyword parameters are those of :data:`.schema.SOLVER_PARAMS`; they are stored unchanged
+    by ``__init__`` and validated by :meth:`fit`.
+    """
+
+    parameter_specs = SOLVER_SPECS
+
+    def __init__(self, **params):
+        unknown = sorted(set(params) - set(SOLVER_SPECS))
+        if unknown:
+            raise TypeError(f'GrassmannNRSfM got an unexpected keyword argument {unknown[0]!r}')
+        for spec in SOLVER_PARAMS:
+            setattr(self, spec.name, params.get(spec.name, spec.default))
+
+    # scikit-learn style introspection -------------------------------------------------------
+    def get_params(self, deep=True):
+        return {spec.name: getattr(self, spec.name) for spec in SOLVER_PARAMS}
+
+    def set_params(self, **params):
+        for name, value in params.items():
+            if name not in SOLVER_SPECS:
+                raise InvalidInputError(f'unknown parameter {name!r}')
+            setattr(self, name, value)
+        return self
+
+    def __repr__(self):
+        args = ', '.join(f'{k}={v!r}' for k, v in self.get_params().items())
+        return f'{type(self).__name__}({args})'
+
+    # the chain ---------------------------------------------------------------------------------
+    def fit(self, W, init=None, progress=None):
+        """Reconstruct ``W: (2F, P)``. ``init``: optional :class:`WarmStart`; ``progress``:
+        optional ``callback(iteration, report)`` called after every ADMM iteration.
+
+        The chain: rotations -> rotation check -> shape pass (thinning -> ADMM -> refinement
+        -> fill) -> registration (the shape pass again with registered rotations)."""
+        params = validate_solver(self.get_params())
+        with threadpool_limits(limits=BLAS_THREADS, user_api='blas'):
+            start, timer = time.perf_counter(), Timer()
+            problem = Problem.from_tracks(W, init)
+            report = SolverReport()
+            t = time.perf_counter()
+            report.stages.append(rotations.NAME)
+            R = rotations.run(problem, params, report)
+            if rotation_check.applies(problem, params):
+                report.stages.append(rotation_check.NAME)
+                R = rotation_check.run(problem, R, params, report, shape_pass)
+            timer.add('rotation', t)
+            result = shape_pass(problem, R, params, report, timer, progress)
+            report.seconds = dict(timer.seconds, total=time.perf_counter() - start)
+            if registration.applies(problem, params, result):
+                result = self._registered(problem, params, result, progress)
+            return result
+
+    @staticmethod
+    def _registered(problem, params, first, progress):
+        """The stage 'registration': the shape pass again with the rotations registered to
+        ``first``'s shapes (its norm kept), then the better of the two."""
+        start, timer = time.perf_counter(), Timer()
+        again = problem.with_rotations(registration.rotations(first))
+        report = SolverReport(stages=first.report.stages + [registration.NAME],
+                              solves=list(first.report.solves))
+        report.stages.append(rotations.NAME)
+        R = rotations.run(again, params, report)
+        second = shape_pass(again, R, dict(params, nuclear=first.report.nuclear), report, timer,
+                            progress, reason='registration')
+        report.seconds = dict(timer.seconds, total=time.perf_counter() - start)
+        return registration.run(problem, params, first, second, time.perf_counter() - start)
+
+
+def shape_pass(problem, R, params, report, timer=None, progress=None, reason='shapes'):
+    """Shapes for ``problem`` with rotations ``R: (F, 3, 3)``: thinning -> ADMM -> refinement
+    -> fill. Fills the report's shape fields (a later pass replaces them); returns the
+    :class:`NRSfMResult`."""
+    timer = timer if timer is not None else Timer()
+    t = time.perf_counter()
+    solved, keep = problem, None
+    if thinning.applies(problem, params):
+        report.stages.append(thinning.NAME)
+        keep = thinning.run(problem, params, report)
+        if keep is not None:
+            solved = problem.tracks(keep)
+    t = timer.add('thinning', t)
+
+    F, P = solved.F, solved.P
+    K_s, K_t, N_s, N_t = config.sizes(params, F, P, solved.groups)
+    off = config.spatial_off_reason(params, K_s, N_s, P, solved.groups)
+    if off:
+        report.notes.append('spatial branch off: ' + off)
+    spatial = params['spatial'] and off is None
+    report.K_s, report.K_t, report.N_s, report.N_t = K_s, K_t, N_s, N_t
+    report.gamma = params['gamma'] * np.sqrt(F * P)
+    report.warm_started_frames = int(solved.known.sum()) if solved.warm else 0
+    report.nuclear = first_nuclear(params['nuclear'], report, solved)
+    S, state = admm_solve(solved, R, params, spatial, report.nuclear, report, timer, progress,
+                          reason)
+
+    t = time.perf_counter()
+    if refinement.applies(solved, params):
+        report.stages.append(refinement.NAME)
+        check = refinement.check(S, solved.W, params)
+        if refinement.prefers_plain(check, params, report.nuclear, report):
+            report.nuclear = 'plain'
+            S, state = admm_solve(solved, R, params, spatial, 'plain', report, timer, progress,
+                                  'refinement: plain nuclear norm')
+            t = time.perf_counter()
+            check = refinement.check(S, solved.W, params)
+        S = refinement.run(S, R, solved.W, params, check, report)
+        t = timer.add('inextensible', t)
+
+    labels = state.labels_original_order()
+    if fill.applies(keep):
+        report.stages.append(fill.NAME)
+        S, labels = fill.run(S, labels, problem.W, keep, report)
+        timer.add('thinning', t)
+    return NRSfMResult(S=S, R=R, translation=problem.translation, groups=labels,
+                       blocks=state.t_edges.copy(), report=report, C_s=state.C_s.copy(),
+                       C_t=state.C_t.copy())
+
+
+def first_nuclear(nuclear, report, problem):
+    """The norm of the first shape solve: 'auto' is centred, but plain with the rigid
+    factorisation's rotations or from given shapes (the centred solve stays near its start)."""
+    if nuclear != 'auto':
+        return nuclear
+    why = ('rigid rotations' if report.rotation_method == 'rigid' else
+           'initial shapes given' if problem.warm else None)
+    if why:
+        report.notes.append(f'nuclear norm: plain (auto; {why})')
+        return 'plain'
+    return 'centred'
+
+
+def admm_solve(problem, R, params, spatial, nuclear, report, timer, progress, reason):
+    """One run of Algorithm 1 from the problem's initial shapes with the norm ``nuclear``.
+    Fills the report's iteration fields and adds ``(reason, F, P, iterations)`` to
+    ``report.solves``; returns ``(S_cam: (3F, P) in W's units, the spent AdmmState)``."""
+    t = time.perf_counter()
+    F, P = R.shape[0], problem.Wn.shape[1]
+    settings = config.admm_settings(params, F, P, problem.groups, nuclear, spatial)
+    state = AdmmState(problem.Wn, R, initial_shapes(problem, R), settings, problem.groups,
+                      warm=problem.warm)
+    t = timer.add('initialisation', t)
+    record = AdmmRun()
+    report.iterations, report.objective, report.gaps = 0, record.objective, record.gaps
+    report.reason, report.converged = record.reason, False
+
+    def on_iteration(rec):
+        report.iterations = rec.iterations
+        if progress is not None:
+            progress(rec.iterations, report)
+
+    run(state, record, on_iteration, timer)
+    report.iterations, report.reason = record.iterations, record.reason
+    report.converged = record.converged
+    if record.diverged:
+        state.fall_back(initial_shapes(problem, R))
+        report.fallback = (f'non-finite objective/gap at iteration {record.iterations}; '
+                           'returned the initial shapes')
+    report.solves.append((reason, F, P, record.iterations))
+    report.regrouped_points = state.moves
+    report.reprojection_relative = float(np.sqrt(state.data_error() / (2 * F * P)))
+    report.reprojection_rms = report.reprojection_relative * problem.scale
+    S_cam = np.matmul(R, state.S_world_original_order())
+    S_cam *= problem.scale
+    timer.add('shape', t)
+    return from_frames(S_cam), state

@@ -1,0 +1,89 @@
+"""Stage 'refinement' (cold solves of dense tracks): each frame's depths made inextensible
+(:func:`..inextensible.refine_depth`: edge lengths from the longest image lengths, signs
+re-estimated from the world shapes), kept when that cuts the variation of the 3D edge lengths
+below INEXTENSIBLE_RATIO of the solver's ('auto') or always ('always').
+
+With nuclear='auto', a centred solve whose shapes would take the inextensible depths (a
+surface that bends without stretching) is solved again with the plain norm first.
+
+Speaks ``S: (3F, P)`` camera frame, ``W: (2F, P)``, ``R: (F, 3, 3)``.
+Report: ``inextensible``, ``nuclear`` (when 'auto' switches), notes with the edge-length
+variations.
+"""
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..inextensible import neighbour_edges, refine_depth
+from ..schema import INEXTENSIBLE_MIN_POINTS, INEXTENSIBLE_RATIO
+
+NAME = 'refinement'
+#: tracks (a fixed random subset) the 'auto' decisions are made on
+CHECK_POINTS = 2000
+
+
+@dataclass(frozen=True)
+class Check:
+    """The edge-length variation of the solver's shapes (``before``) and of their inextensible
+    depths (``after``) on ``tracks`` tracks, their ``ratio``, and whether the depths are
+    ``used``."""
+    before: float
+    after: float
+    ratio: float
+    tracks: int
+    used: bool
+
+
+def applies(problem, params):
+    """Cold solves (no initial shapes: a warm-started window keeps its carried depths), dense
+    tracks unless 'always'."""
+    mode = params['inextensible']
+    if mode == 'never' or problem.warm:
+        return False
+    return mode == 'always' or problem.P >= INEXTENSIBLE_MIN_POINTS
+
+
+def check_tracks(P, random_state):
+    """Indices ``(P',)`` of the tracks (all, or a fixed random CHECK_POINTS of them) on which
+    the inextensible decisions are made."""
+    if P <= CHECK_POINTS:
+        return np.arange(P)
+    rng = np.random.default_rng(random_state)
+    return np.sort(rng.choice(P, CHECK_POINTS, replace=False))
+
+
+def check(S, W, params):
+    """The :class:`Check` of ``S: (3F, P)`` on the tracks ``W: (2F, P)`` (all of them when
+    'always')."""
+    mode, P = params['inextensible'], W.shape[1]
+    idx = check_tracks(P, params['random_state']) if mode == 'auto' else np.arange(P)
+    _, info = refine_depth(S[:, idx], neighbour_edges(W[:, idx]))
+    before, after = info['length_variation_before'], info['length_variation_after']
+    ratio = after / before if before > 0 else 1.0
+    return Check(before, after, ratio, idx.size, mode == 'always' or ratio < INEXTENSIBLE_RATIO)
+
+
+def prefers_plain(result, params, nuclear, report):
+    """nuclear='auto' on a centred solve whose :class:`Check` ``result`` uses the depths: the
+    surface bends without stretching, the plain norm is solved instead (noted)."""
+    if params['nuclear'] != 'auto' or nuclear != 'centred':
+        return False
+    c = result
+    report.notes.append(
+        f"nuclear norm: {'plain' if c.used else 'centred'} (auto; the centred solve's "
+        f'edge-length variation {c.before:.4f} -> {c.after:.4f} with inextensible depths on '
+        f'{c.tracks} tracks, ratio {c.ratio:.2f}, threshold {INEXTENSIBLE_RATIO:g})')
+    return c.used
+
+
+def run(S, R, W, params, result, report):
+    """``S: (3F, P)`` with inextensible depths when the :class:`Check` ``result`` says so."""
+    c = result
+    report.inextensible = c.used
+    report.notes.append(
+        f"inextensible depths {'used' if c.used else 'not used'} ({params['inextensible']}): "
+        f'edge-length variation {c.before:.4f} -> {c.after:.4f} on {c.tracks} tracks (ratio '
+        f'{c.ratio:.2f}, threshold {INEXTENSIBLE_RATIO:g})')
+    if not c.used:
+        return S
+    return refine_depth(S, neighbour_edges(W), R=R)[0]

@@ -1,0 +1,42 @@
+"""Stage 'rotations': the rotations ``R: (F, 3, 3)`` of a problem, given or estimated.
+
+Given for every frame (``init.R`` with all frames known): used as they are. Otherwise estimated
+from ``Wn: (2F, P)`` by Dai et al.'s method ('dai', and 'auto' before the rotation check) or
+the rigid factorisation ('rigid'), then aligned to the given ones on the known frames.
+Report: ``rotation_method`` ('given', 'dai' or 'rigid'), ``K_rot`` (Dai's rank or None).
+"""
+import numpy as np
+
+from ..rotation import align_rotations, estimate_rotations, rigid_factorisation
+
+NAME = 'rotations'
+
+
+def applies(problem):
+    """Every solve has rotations."""
+    return True
+
+
+def method(problem, params):
+    """'given', or the estimate asked for: the warm start's method, else the parameter."""
+    if problem.init.R is not None and problem.known.all():
+        return 'given'
+    return problem.init.rotation_method or params['rotations']
+
+
+def run(problem, params, report):
+    """``R: (F, 3, 3)`` float64 for ``problem``; fills the report's section."""
+    init, known = problem.init, problem.known
+    asked = method(problem, params)
+    if asked == 'given':
+        report.rotation_method, report.K_rot = 'given', None
+        return np.array(init.R, dtype=np.float64)
+    if asked == 'rigid':
+        R, K = rigid_factorisation(problem.Wn)[0], None
+    else:
+        est = estimate_rotations(problem.Wn, K=params['K_rot'])
+        R, K = np.array(est.R, dtype=np.float64), est.K
+    report.rotation_method, report.K_rot = ('dai' if K is not None else 'rigid'), K
+    if init.R is None:
+        return R
+    return align_rotations(R, np.asarray(init.R, dtype=np.float64), known)

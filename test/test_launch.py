@@ -1,0 +1,108 @@
+"""launch/grass_nrsfm.launch.py: the launch packages are not on PyPI, so the file is imported
+against stubs of the ``launch`` / ``launch_ros`` modules that record what it builds; every
+argument it uses is declared and every parameter it sets exists in the node's schema. Where
+``launch_ros`` is importable, the description is also built with the real classes."""
+import importlib.util
+from pathlib import Path
+import sys
+import types
+
+import pytest
+
+from grass_nrsfm_ros import params
+
+REPO = Path(__file__).resolve().parents[1]
+LAUNCH_FILE = REPO / 'launch' / 'grass_nrsfm.launch.py'
+ARGUMENTS = {'namespace', 'params_file', 'tracks', 'points', 'record_path', 'rviz'}
+STUBS = {'launch': ['LaunchDescription'], 'launch.actions': ['DeclareLaunchArgument'],
+         'launch.conditions': ['IfCondition'],
+         'launch.substitutions': ['LaunchConfiguration', 'PathJoinSubstitution'],
+         'launch_ros': [], 'launch_ros.actions': ['Node'],
+         'launch_ros.substitutions': ['FindPackageShare']}
+
+
+class Recorded:
+    """A stub launch class: keeps its arguments."""
+
+    def __init__(self, *args, **kwargs):
+        self.args, self.kwargs = args, kwargs
+
+    def __eq__(self, other):
+        same = (self.args, self.kwargs) == (getattr(other, 'args', None),
+                                            getattr(other, 'kwargs', None))
+        return type(self) is type(other) and same
+
+    def __repr__(self):
+        return f'{type(self).__name__}{self.args}{self.kwargs}'
+
+
+def load_launch_file():
+    spec = importlib.util.spec_from_file_location('grass_nrsfm_launch', LAUNCH_FILE)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture
+def stubbed(monkeypatch):
+    """The stub classes by name, installed in sys.modules as the launch packages."""
+    classes = {}
+    for module_name, names in STUBS.items():
+        module = types.ModuleType(module_name)
+        for name in names:
+            classes[name] = module.__dict__[name] = type(name, (Recorded,), {})
+        monkeypatch.setitem(sys.modules, module_name, module)
+    return classes
+
+
+def walk(value):
+    """Every Recorded object inside ``value`` (lists, tuples, dicts, stub arguments)."""
+    if isinstance(value, Recorded):
+        yield value
+        for v in (*value.args, *value.kwargs.values()):
+            yield from walk(v)
+    elif isinstance(value, (list, tuple)):
+        for v in value:
+            yield from walk(v)
+    elif isinstance(value, dict):
+        for v in value.values():
+            yield from walk(v)
+
+
+def test_launch_file_builds_and_names_only_known_parameters(stubbed):
+    description = load_launch_file().generate_launch_description()
+    assert isinstance(description, stubbed['LaunchDescription'])
+    entities = description.args[0]
+    declared = {e.args[0]: e.kwargs['default_value'] for e in entities
+                if isinstance(e, stubbed['DeclareLaunchArgument'])}
+    assert set(declared) == ARGUMENTS
+    assert declared['rviz'] == 'false' and declared['record_path'] == ''
+    share = stubbed['FindPackageShare']('grass_nrsfm_ros')
+    assert declared['params_file'] == stubbed['PathJoinSubstitution'](
+        [share, 'config', 'params.yaml'])
+    used = {c.args[0] for c in walk(entities) if isinstance(c, stubbed['LaunchConfiguration'])}
+    assert used <= set(declared) and used == ARGUMENTS
+
+    nodes = {n.kwargs['package']: n for n in entities if isinstance(n, stubbed['Node'])}
+    node = nodes['grass_nrsfm_ros']
+    assert node.kwargs['executable'] == 'node' and node.kwargs['name'] == params.NODE_NAME
+    schema = {p.name for p in params.all_params()}
+    named = {k for p in node.kwargs['parameters'] if isinstance(p, dict) for k in p}
+    assert named and named <= schema
+    assert dict(node.kwargs['remappings']) == {
+        'tracks': stubbed['LaunchConfiguration']('tracks'),
+        'points': stubbed['LaunchConfiguration']('points')}
+    rviz = nodes['rviz2']
+    assert rviz.kwargs['condition'] == stubbed['IfCondition'](
+        stubbed['LaunchConfiguration']('rviz'))
+    config = rviz.kwargs['arguments'][1].args[0]
+    assert (REPO / Path(*config[1:])).is_file()           # config/grass_nrsfm.rviz
+    assert (REPO / 'config' / 'params.yaml').is_file()
+
+
+def test_launch_file_with_the_real_launch_packages():
+    launch = pytest.importorskip('launch')
+    pytest.importorskip('launch_ros')
+    description = load_launch_file().generate_launch_description()
+    assert isinstance(description, launch.LaunchDescription)
+    assert {a.name for a in description.get_launch_arguments()} == ARGUMENTS

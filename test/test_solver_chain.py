@@ -1,0 +1,116 @@
+"""The solver as a chain: Algorithm 1 resumable bit for bit, the stages and solves reported,
+no solver inside a solver, validated parameters left unchanged."""
+import numpy as np
+import pytest
+
+from grass_nrsfm_ros.nrsfm import admm, GrassmannNRSfM, WarmStart
+from grass_nrsfm_ros.nrsfm.config import admm_settings
+from grass_nrsfm_ros.nrsfm.problem import initial_shapes, Problem
+from grass_nrsfm_ros.nrsfm.schema import solver_defaults
+from grass_nrsfm_ros.nrsfm.synthetic import make_sequence
+
+
+def admm_problem(F=20, P=400, kind='articulated'):
+    seq = make_sequence(kind, n_frames=F, n_points=P, camera='orbit', seed=1)
+    problem = Problem.from_tracks(seq.W, WarmStart(R=seq.R))
+    R = np.array(seq.R, dtype=np.float64)
+    # K_s = 4 groups regrouped every 10 iterations (346 moves): the resumed run crosses
+    # regroupings, which reorder the stored columns
+    params = dict(solver_defaults(), K_s=4)
+    settings = admm_settings(params, F, P, None, 'plain', spatial=True)
+    return problem, R, settings
+
+
+def fresh_state(problem, R, settings):
+    return admm.AdmmState(problem.Wn, R, initial_shapes(problem, R), settings)
+
+
+def test_a_checkpointed_run_resumes_bit_for_bit():
+    problem, R, settings = admm_problem()
+    whole = fresh_state(problem, R, settings)
+    whole_run = admm.run(whole)
+    assert whole_run.converged and whole_run.iterations > 30
+    part = fresh_state(problem, R, settings)
+    first = admm.run(part, iterations=25)
+    assert first.iterations == 25 and not first.converged
+    checkpoint = part.checkpoint()
+    del part
+    resumed = admm.AdmmState.resume(problem.Wn, R, checkpoint, settings)
+    rest = admm.run(resumed)
+    assert rest.iterations == whole_run.iterations
+    assert first.objective + rest.objective == whole_run.objective
+    assert first.gaps + rest.gaps == whole_run.gaps
+    assert whole.moves > 0 and resumed.moves == whole.moves
+    np.testing.assert_array_equal(resumed.labels_original_order(),
+                                  whole.labels_original_order())
+    np.testing.assert_array_equal(resumed.S_world_original_order(),
+                                  whole.S_world_original_order())
+
+
+def test_checkpoint_is_in_input_column_order():
+    problem, R, settings = admm_problem(F=12, P=300)
+    state = fresh_state(problem, R, settings)
+    admm.run(state, iterations=12)
+    c = state.checkpoint()
+    F, P = 12, 300
+    assert c.S.shape == c.S_sharp.shape == c.Y1.shape == (F, 3, P)
+    np.testing.assert_array_equal(c.labels, state.labels_original_order())
+    np.testing.assert_array_equal(c.S[:, :, state.order], state.S)     # a copy, reordered
+    assert sorted(c.order.tolist()) == list(range(P)) and c.iteration == 12
+
+
+def test_report_lists_stages_and_solves_and_no_solver_is_built_inside(monkeypatch):
+    seq = make_sequence('bending', n_frames=20, n_points=300, camera='orbit', seed=2)
+    built, fits = [], []
+    init, fit = GrassmannNRSfM.__init__, GrassmannNRSfM.fit
+
+    def counting_init(self, **kwargs):
+        built.append(kwargs)
+        init(self, **kwargs)
+
+    def counting_fit(self, *args, **kwargs):
+        fits.append(args)
+        return fit(self, *args, **kwargs)
+    monkeypatch.setattr(GrassmannNRSfM, '__init__', counting_init)
+    monkeypatch.setattr(GrassmannNRSfM, 'fit', counting_fit)
+    states = []
+    state_init = admm.AdmmState.__init__
+
+    def counting_state(self, *args, **kwargs):
+        states.append(1)
+        state_init(self, *args, **kwargs)
+    monkeypatch.setattr(admm.AdmmState, '__init__', counting_state)
+    report = GrassmannNRSfM().fit(seq.W).report
+    assert len(built) == 1 and len(fits) == 1
+    reasons = [s[0] for s in report.solves]
+    assert len(report.solves) == len(states) >= 3
+    assert reasons[:3] == ['rotation check: dai', 'rotation check: rigid', 'shapes']
+    assert all(F == 20 and it >= 1 for _, F, _, it in report.solves)
+    assert report.stages[:3] == ['rotations', 'rotation check', 'thinning']
+    assert 'refinement' in report.stages                     # cold, 300 tracks: dense
+    assert report.iterations in [it for *_, it in report.solves[2:]]
+    if report.rotations_registered:
+        assert reasons[-1] == 'registration' and 'registration' in report.stages
+
+
+def test_warm_start_makes_one_solve():
+    seq = make_sequence('waving', n_frames=15, n_points=120, seed=3)
+    report = GrassmannNRSfM().fit(seq.W, init=WarmStart(R=seq.R)).report
+    assert [s[0] for s in report.solves] == ['shapes']
+    assert report.stages == ['rotations', 'thinning', 'refinement']
+
+
+def test_fit_leaves_the_parameters_unchanged():
+    """The spatial branch goes off for a sparse problem in that solve only."""
+    seq = make_sequence('waving', n_frames=15, n_points=60, seed=4)
+    est = GrassmannNRSfM()
+    before = est.get_params()
+    report = est.fit(seq.W, init=WarmStart(R=seq.R)).report
+    assert any('spatial branch off' in note for note in report.notes)
+    assert est.get_params() == before and est.spatial is True
+
+
+@pytest.mark.parametrize('name', ['zeta_weight', 'local_rigidity', 'power_steps', 'eps'])
+def test_deleted_options_are_refused(name):
+    with pytest.raises(TypeError, match=name):
+        GrassmannNRSfM(**{name: 1})
