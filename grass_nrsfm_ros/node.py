@@ -132,6 +132,7 @@ class ReconstructionNode(Node):
         self._configure_blas()
         self.pipeline = make_pipeline(config, solver_factory, warm_start_class=warm_start_class)
         self._frame_id = config['frame_id']
+        self._inline = config['mapping'] == 'inline'
         self._counts = dict(messages=0, dropped_messages=0, dropped_windows=0, solve_errors=0)
         self._last_solve = {}
         self._lock = threading.Lock()
@@ -387,7 +388,10 @@ class ReconstructionNode(Node):
         if step.points:
             self._latencies.append(time.monotonic() - self._received)
         for window in step.windows:
-            self._submit(window)
+            if self._inline:
+                self._solve_and_publish(window)     # reproducible: as the offline tools
+            else:
+                self._submit(window)
 
     def _drop(self, stamp, reason):
         self._counts['dropped_messages'] += 1

@@ -30,8 +30,9 @@ README_END = '<!-- /params-table -->'
 #: values of ``warm_start`` and ``warm_rotations``
 WARM_STARTS = ('model', 'full', 'off')
 WARM_ROTATIONS = ('refine', 'fit', 'solver')
-#: values of ``output``
+#: values of ``output`` and ``mapping``
 OUTPUTS = ('live', 'windows')
+MAPPINGS = ('worker', 'inline')
 #: values of ``input_reliability``
 INPUT_RELIABILITIES = ('auto', 'best_effort', 'reliable')
 #: the fewest frames a window can have
@@ -73,6 +74,11 @@ NODE_PARAMS = (
           "shape model and published on points at once; each solved window's frames follow on "
           "points/refined. 'windows': frames are published on points only when their window is "
           'solved (the sliding-window behaviour).', choices=OUTPUTS),
+    Param('mapping', 'worker', str,
+          "Where windows are solved: 'worker' (a thread beside the tracking: every frame is "
+          "published at once, refined when its window is solved); 'inline' (in the input "
+          'callback, before the next frame: the output equals the offline tools for the same '
+          'input, but tracking waits for each solve).', choices=MAPPINGS),
     Param('mapping_tracks', 2000, int,
           'Most tracks a window is solved on (a fixed subset by track id); the others are '
           'filled in from their neighbours. 0: all tracks.', range=(0, 10000000)),

@@ -85,8 +85,11 @@ def test_reset_drops_buffer_and_model_and_starts_a_new_sequence(ros_env, tmp_pat
         messages, ids = frames_at_30hz(45)
         publish_at_30hz(feeder, messages)
         before = feeder.accounted(45)
-        # windows of 30, stride 10: frames 0-39 published, 40-44 buffered
-        assert before['frames published'] == 40 and before['frames pending'] == 5, before
+        # every frame tracked and published; windows of 30, stride 10: frames 0-39 refined,
+        # 40-44 buffered
+        assert before['frames published'] == 45 and before['frames pending'] == 0, before
+        values = feeder.diagnostic_values()
+        assert values['frames refined'] == '40' and values['frames awaiting refinement'] == '5'
         future = client.call_async(Trigger.Request())
         assert feeder.wait_for(future.done, 10)
         answer = future.result()
@@ -98,16 +101,16 @@ def test_reset_drops_buffer_and_model_and_starts_a_new_sequence(ros_env, tmp_pat
         assert feeder.wait_for(lambda: feeder.node_reports(since).get('resets requested') == '1',
                                5)
         values = feeder.node_reports(since)
-        assert values['sequences'] == '2' and values['frames lost'] == '5'
+        assert values['sequences'] == '2' and values['frames not refined'] == '5'
         assert values['last reset'] == answer.message
         # the same tracker goes on (same ids, later stamps): a new sequence from the next frame
         more, _ = frames_at_30hz(40, first=45, seed=0)
         publish_at_30hz(feeder, more)
         after = feeder.accounted(85)
-        assert after['frames published'] == 80 and after['frames lost'] == 5, after
-        assert feeder.wait_for(lambda: len(feeder.points) >= 80, 10)
+        assert after['frames published'] == 85 and after['frames lost'] == 0, after
+        assert feeder.wait_for(lambda: len(feeder.points) >= 85, 10)
         stamps = sorted(stamp_of(m) for m in feeder.points)
-        assert stamps[40:] == sorted(stamp_of(m) for m in more)
+        assert stamps[45:] == sorted(stamp_of(m) for m in more)
     text = log.read_text()
     assert text.count('reset: dropped 5 buffered frames') == 1, text
 

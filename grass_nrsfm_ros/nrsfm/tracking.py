@@ -9,8 +9,13 @@ subset of the model's tracks) by alternating
 * the rotation ``R`` in SO(3): Gauss-Newton on so(3) from the previous frame's rotation,
   minimising ``||w - Pi R X||`` (orthographic: ``Pi`` keeps rows 0, 1; the SVD of ``w X^T``
   is *not* this minimiser, since the projection drops depth);
-* the mode coefficients ``c: (r,)``: linear least squares, pulled towards the previous
-  frame's coefficients by ``temporal_prior``.
+* the mode coefficients ``c: (r,)``: the MAP estimate under a Gaussian (PPCA) prior
+  ``c_k ~ N(0, var_k)``, ``var_k`` the model's own variance of mode k over its frames, and
+  image noise ``sigma^2 = NOISE_SHARE * mean(w^2)`` per coordinate:
+  ``(A^T A + sigma^2 diag(1 / var)) c = A^T b`` (``A: (2P, r)`` the projected modes, ``b``
+  the data less the projected mean), optionally pulled towards the previous frame's
+  coefficients by ``temporal_prior``. The prior lets many modes be kept (``MODE_ENERGY``
+  0.9999): weak modes are shrunk instead of fitted freely or dropped.
 
 The frame's camera-frame shape is ``x, y`` = its centred data, ``z`` = the depth of
 ``R X`` (centred), as the windows publish. Tracks the model lacks take the depth of their
@@ -27,11 +32,16 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 #: modes kept: the fewest whose energy reaches this share of the deviations' energy
-MODE_ENERGY = 0.99
+MODE_ENERGY = 0.9999
 #: and never more than this many, nor any whose RMS over the frames is below this share of
 #: the mean shape's norm (a rigid solution has no modes)
-MAX_MODES = 10
+MAX_MODES = 40
 MODE_FLOOR = 1e-6
+#: most tracks a frame's rotation and coefficients are fitted on
+FIT_TRACKS = 4000
+#: image noise variance per coordinate assumed by the coefficients' Gaussian prior, as a share
+#: of the frame's mean squared centred image coordinate (3 % RMS noise)
+NOISE_SHARE = 1e-3
 #: alternations of rotation and coefficients per frame, Gauss-Newton steps per rotation fit
 ALTERNATIONS = 4
 GN_STEPS = 2
@@ -51,6 +61,7 @@ class ShapeModel:
     stamps: np.ndarray
     R: np.ndarray
     coefficients: np.ndarray
+    variances: np.ndarray = None
 
     @property
     def rank(self):
@@ -86,8 +97,19 @@ def build_model(S, R, ids, stamps, *, energy=MODE_ENERGY, max_modes=MAX_MODES):
                    np.sum(s > MODE_FLOOR * np.linalg.norm(mean) * np.sqrt(F))))
     modes = Vt[:rank].reshape(rank, 3, P)
     coefficients = D @ Vt[:rank].T
+    variances = mode_variances(s, rank, F, P)
     return ShapeModel(np.asarray(ids), mean, modes, np.asarray(stamps, dtype=np.int64),
-                      np.asarray(R, dtype=np.float64), coefficients)
+                      np.asarray(R, dtype=np.float64), coefficients, variances)
+
+
+def mode_variances(s, rank, F, P):
+    """Prior variances ``(rank,)`` of the coefficients from the singular values ``s`` of the
+    ``(F, 3P)`` deviations: PPCA's ``s_k^2 / F - sigma_u^2``, ``sigma_u^2`` the
+    per-coordinate variance left in the discarded modes (floored, never zero)."""
+    lam = s ** 2 / max(F, 1)
+    rest = float(np.sum(lam[rank:])) / max(3 * P - rank, 1)
+    floor = 1e-12 * (float(lam[0]) if lam.size else 1.0) + 1e-300
+    return np.maximum(lam[:rank] - rest, floor)
 
 
 def rodrigues(v):
@@ -125,11 +147,17 @@ def fit_rotation(w, X, R, steps=GN_STEPS):
     return R
 
 
-def fit_frame(w, mean, modes, R, c, prior=0.0, alternations=ALTERNATIONS):
+def fit_frame(w, mean, modes, R, c, prior=0.0, alternations=ALTERNATIONS, variances=None,
+              noise_share=NOISE_SHARE):
     """``(R: (3, 3), c: (r,), X: (3, P))`` fitting ``w: (2, P)`` (centred) to the model shape
     ``mean + sum_k c_k modes_k`` (``mean: (3, P)``, ``modes: (r, 3, P)``, both centred over
-    these tracks), starting from ``R`` and ``c``; ``prior`` pulls ``c`` towards the given one."""
+    these tracks), starting from ``R`` and ``c``; ``prior`` pulls ``c`` towards the given one;
+    ``variances: (r,)`` the Gaussian prior's (None: no prior), image noise variance
+    ``noise_share * mean(w^2)``."""
     c_prior = c
+    shrink = 0.0
+    if variances is not None and modes.shape[0]:
+        shrink = noise_share * float(np.mean(w ** 2)) / variances             # (r,)
     X = mean + np.tensordot(c, modes, axes=1)
     for _ in range(alternations):
         R = fit_rotation(w, X, R)
@@ -138,8 +166,8 @@ def fit_frame(w, mean, modes, R, c, prior=0.0, alternations=ALTERNATIONS):
             b = (w - R[:2] @ mean).ravel()
             G = A.T @ A
             lam = prior * np.trace(G) / max(G.shape[0], 1)
-            c = np.linalg.solve(G + (lam + 1e-12 * np.trace(G) + 1e-300) * np.eye(G.shape[0]),
-                                A.T @ b + lam * c_prior)
+            H = G + np.diag(shrink + lam + 1e-12 * np.trace(G) + 1e-300)
+            c = np.linalg.solve(H, A.T @ b + lam * c_prior)
             X = mean + np.tensordot(c, modes, axes=1)
     return R, c, X
 
@@ -147,8 +175,11 @@ def fit_frame(w, mean, modes, R, c, prior=0.0, alternations=ALTERNATIONS):
 class Tracker:
     """Reconstructs frames one at a time against the current :class:`ShapeModel`."""
 
-    def __init__(self, model, *, temporal_prior=0.0):
+    def __init__(self, model, *, temporal_prior=0.0, noise_share=NOISE_SHARE):
+        """``noise_share``: the coefficients' Gaussian prior's image noise (0: plain least
+        squares, which reproduces an exact model exactly)."""
         self.temporal_prior = float(temporal_prior)
+        self.noise_share = float(noise_share)
         self.model = model
         self.R = model.R[-1].copy()
         self.c = model.coefficients[-1].copy() if model.rank else np.zeros(0)
@@ -176,13 +207,13 @@ class Tracker:
         _, cols, known = np.intersect1d(model.ids, ids, assume_unique=True,
                                         return_indices=True)
         w_all = uv.T - uv.mean(axis=0)[:, None]                  # (2, P)
-        w = w_all[:, known] - w_all[:, known].mean(axis=1, keepdims=True)
-        mean = model.mean[:, cols]
-        modes = model.modes[:, :, cols]
-        mean = mean - mean.mean(axis=1, keepdims=True)
-        modes = modes - modes.mean(axis=2, keepdims=True)
-        R, c, X = fit_frame(w, mean, modes, self.R, self.c, self.temporal_prior)
-        Y = R @ X
+        fit = fit_subset(cols.size)
+        R, c, _ = fit_frame(*centred(w_all[:, known[fit]], model.mean[:, cols[fit]],
+                                     model.modes[:, :, cols[fit]]),
+                            self.R, self.c, self.temporal_prior,
+                            variances=model.variances, noise_share=self.noise_share)
+        w, mean, modes = centred(w_all[:, known], model.mean[:, cols], model.modes[:, :, cols])
+        Y = R @ (mean + np.tensordot(c, modes, axes=1))
         residual = float(np.linalg.norm(w - Y[:2]) / max(np.linalg.norm(w), 1e-300))
         z = np.empty(ids.size)
         z[known] = Y[2]
@@ -194,6 +225,19 @@ class Tracker:
         self.history[int(stamp_ns)] = R
         self.age += 1
         return TrackedFrame(ids, xyz, R, c, residual, int(new.size))
+
+
+def fit_subset(n, most=FIT_TRACKS):
+    """Indices of the tracks (of ``n``) a frame is fitted on: all, or ``most`` evenly spread
+    (the fit's cost then does not grow with the tracks; every track's depth is still
+    computed)."""
+    return slice(None) if n <= most else np.linspace(0, n - 1, most).astype(int)
+
+
+def centred(w, mean, modes):
+    """``w: (2, P)``, ``mean: (3, P)``, ``modes: (r, 3, P)`` each centred over the tracks."""
+    return (w - w.mean(axis=1, keepdims=True), mean - mean.mean(axis=1, keepdims=True),
+            modes - modes.mean(axis=2, keepdims=True))
 
 
 def neighbour_depth(uv_known, z_known, uv_new, k=NEW_TRACK_NEIGHBOURS):
