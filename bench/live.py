@@ -90,10 +90,12 @@ def compare(name, W, S, mapping_tracks):
     points, refined, live, cpu = run_pipeline(W, 'live', mapping_tracks)
     windows, _, _, cpu_windows = run_pipeline(W, 'windows', 0)
     per_frame = e3d(stacked(points), S, per_frame=True)
+    windows_per_frame = e3d(stacked(windows), S, per_frame=True)
     first = live.stats['first_model_after']
     row = {'sequence': name, 'F': W.shape[0] // 2, 'P': W.shape[1],
            'e3d_points': float(per_frame.mean()),
            'e3d_points_after_first_model': float(per_frame[first:].mean()),
+           'e3d_windows_after_first_model': float(windows_per_frame[first:].mean()),
            'e3d_refined': e3d(stacked(refined), S), 'e3d_windows': e3d(stacked(windows), S),
            'first_model_after_frames': first, 'fresh_windows': live.stats['fresh_windows'],
            'tracking_ms_p50': 1e3 * live.latency_percentiles()[0],
