@@ -55,6 +55,7 @@ ACK_TIMEOUT_S = 2.0           # longest wait for subscribers to take a burst of 
 INPUT_DEPTH = 100            # tracks messages the node's reader keeps (3 s at 30 Hz)
 CLOSE_GRACE_S = 1.0          # close() waits this long for a running solve, then leaves it
 LATENCY_WINDOW = 300         # tracking latencies kept for the percentiles in /diagnostics
+GIL_SWITCH_S = 0.0005        # the mapping thread yields the GIL this often (record 0400)
 RELIABILITY = {'reliable': ReliabilityPolicy.RELIABLE,
                'best_effort': ReliabilityPolicy.BEST_EFFORT}
 
@@ -564,6 +565,7 @@ class ReconstructionNode(Node):
 
 def main(args=None, *, solver_factory=None, warm_start_class=None):
     """Run the node until Ctrl-C / SIGTERM; returns the exit code (2: invalid parameters)."""
+    sys.setswitchinterval(GIL_SWITCH_S)
     rclpy.init(args=args)
     try:
         node = ReconstructionNode(solver_factory, warm_start_class)
