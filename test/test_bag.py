@@ -12,6 +12,7 @@ import pytest
 
 from grass_nrsfm_ros import bag
 from grass_nrsfm_ros.cloud import decode_tracks, tracks_array
+from grass_nrsfm_ros.commands.reconstruct import reconstruct_bag
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -379,8 +380,8 @@ def test_reconstruct_bag_writes_points_for_every_frame_and_copies_inputs(tmp_pat
     stamps = 10**9 + np.arange(8) * 1000
     bag.tracks_bag_from_arrays(W, stamps, tmp_path / 'in', S=S, visible=visible)
     calls = []
-    report = bag.reconstruct_bag(tmp_path / 'in', tmp_path / 'out', ChunkPipeline(),
-                                 progress=lambda d, t: calls.append((d, t)))
+    report = reconstruct_bag(tmp_path / 'in', tmp_path / 'out', ChunkPipeline(),
+                             progress=lambda d, t: calls.append((d, t)))
     assert (report.frames_in, report.frames_out, report.windows) == (8, 7, 3)
     assert len(report.refused) == 1 and 'frame 5' in report.refused[0]
     assert report.copied == {'/tracks': 8, '/ground_truth': 8}

@@ -12,8 +12,11 @@ from pathlib import Path
 
 import numpy as np
 
+from grass_nrsfm_ros import bag
 from grass_nrsfm_ros.cli import UserError
 from grass_nrsfm_ros.commands.npz import opened
+from grass_nrsfm_ros.nrsfm.metrics import e3d, procrustes_align
+from grass_nrsfm_ros.render import contact_sheet, frame_figure, write_png
 
 
 def add_arguments(parser):
@@ -43,8 +46,6 @@ def frames_from_npz(path, key):
 
 def frames_from_bag(path, topic):
     """``[(stamp_ns, ids, xyz: (3, P))]`` in stamp order (latest cloud per stamp), or None."""
-    from grass_nrsfm_ros import bag
-
     try:
         by_stamp = {f.stamp_ns: (f.ids, f.xyz.T) for f in bag.read_points(path, topic)}
     except bag.TopicNotFoundError:
@@ -61,8 +62,6 @@ def load(path, est_key='S', gt_key='S_gt', points_topic='/points', gt_topic='/gr
 
 def aligned_pair(est, truth):
     """Estimate aligned to truth on their common ids: ``(est (3, P), truth (3, P), e3D)``."""
-    from grass_nrsfm_ros.nrsfm.metrics import e3d, procrustes_align
-
     common, ie, it = np.intersect1d(est[1], truth[1], return_indices=True)
     X, Y = est[2][:, ie], truth[2][:, it]
     ok = np.isfinite(X).all(axis=0) & np.isfinite(Y).all(axis=0)
@@ -75,8 +74,6 @@ def aligned_pair(est, truth):
 
 def figure(k, est_frames, gt_frames, size, views=('front', 'side', 'top')):
     """The figure of the k-th frame (estimate order, or truth order when there is none)."""
-    from grass_nrsfm_ros.render import frame_figure
-
     main = est_frames if est_frames is not None else gt_frames
     key, _, _ = main[k]
     est = est_frames[k] if est_frames is not None else None
@@ -97,8 +94,6 @@ def figure(k, est_frames, gt_frames, size, views=('front', 'side', 'top')):
 
 
 def run(args):
-    from grass_nrsfm_ros.render import contact_sheet, write_png
-
     est, truth = load(args.source, points_topic=args.points_topic, gt_topic=args.gt_topic)
     if args.gt:
         truth = (frames_from_npz(args.gt, 'S') if Path(args.gt).suffix == '.npz'
