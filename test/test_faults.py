@@ -1,6 +1,10 @@
 """Faults: the node killed or stopped mid-work, a recording target that fails, peers that come
 and go, and bags from outside that are broken. The node runs in its own process (test/rosutil),
-with the rigid test solver of test_pipeline unless a test needs a slow one."""
+with the rigid test solver of test/doubles.py unless a test needs a slow one.
+
+Figures (exit times, counts) are recorded as the test-suite property ``reliability_faults``
+(JSON); ``python -m bench.reliability`` collects them into bench/results/reliability_faults.json.
+The tests write no file."""
 import json
 import os
 from pathlib import Path
@@ -18,7 +22,6 @@ from grass_nrsfm_ros import bag
 from grass_nrsfm_ros.nrsfm.measurement import as_frames
 
 REPO = Path(__file__).resolve().parents[1]
-RESULTS = REPO / 'bench' / 'results' / 'reliability_faults.json'
 FIGURES = {}
 T0 = 1_700_000_000_000_000_000
 PERIOD_NS = 33_333_333
@@ -91,12 +94,12 @@ def figure(name, **values):
 
 
 @pytest.fixture(scope='module', autouse=True)
-def write_figures():
+def fault_figures(record_testsuite_property):
+    """After the module: the figures as the suite property ``reliability_faults`` (kept only
+    with ``--junitxml``, as bench/reliability.py runs it)."""
     yield
     if FIGURES:
-        RESULTS.parent.mkdir(parents=True, exist_ok=True)
-        old = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
-        RESULTS.write_text(json.dumps({**old, **FIGURES}, indent=1, sort_keys=True) + '\n')
+        record_testsuite_property('reliability_faults', json.dumps(FIGURES, sort_keys=True))
 
 
 def ros():
