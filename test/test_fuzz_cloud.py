@@ -18,6 +18,7 @@ write no file.
 """
 from collections import Counter
 import json
+import os
 import tracemalloc
 from types import SimpleNamespace
 
@@ -25,6 +26,7 @@ from hypothesis import given, HealthCheck, settings, strategies as st
 import numpy as np
 import pytest
 
+from doubles import RigidALS, RigidWarmStart
 from grass_nrsfm_ros import cloud
 
 EXAMPLES = 300
@@ -307,11 +309,8 @@ def node_in_process():
     """A ReconstructionNode in this process (discovery off), the rigid test solver injected;
     windows of 1000 frames so no solve starts (the callback path only)."""
     rclpy = pytest.importorskip('rclpy')
-    import os
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'OFF'
-    from test_pipeline import RigidALS, RigidWarmStart
-
-    from grass_nrsfm_ros.node import ReconstructionNode
+    from grass_nrsfm_ros.node import ReconstructionNode    # here: it needs rclpy
 
     context = rclpy.Context()
     rclpy.init(context=context, args=['--ros-args', '-p', 'window_size:=1000',

@@ -1,6 +1,7 @@
 import numpy as np
 import pytest
 
+from doubles import random_rotations
 from grass_nrsfm_ros.nrsfm import grassmann as gm
 
 
@@ -40,16 +41,11 @@ def test_zeta_is_exact_on_low_rank_groups_and_truncates_otherwise():
     assert np.allclose(half, 0.5 * (full + out))
 
 
-def random_rotations(rng, F):
-    Q, _ = np.linalg.qr(rng.normal(size=(F, 3, 3)))
-    return Q * np.sign(np.linalg.det(Q))[:, None, None]
-
-
 def test_rigid_projection_keeps_rigid_motion_and_pulls_others_towards_it():
     rng = np.random.default_rng(7)
     F, n = 12, 30
     rest = rng.normal(size=(3, n))
-    Q = random_rotations(rng, F)
+    Q = random_rotations(F, rng)
     moving = (Q @ rest + rng.normal(size=(F, 3, 1))).reshape(3 * F, n)
     assert np.allclose(gm.rigid_projection(moving.copy(), F), moving, atol=1e-9)
     scaled = (Q @ rest * rng.uniform(0.5, 2.0, size=(F, 1, 1))).reshape(3 * F, n)

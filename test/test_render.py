@@ -7,6 +7,7 @@ import pytest
 
 from grass_nrsfm_ros import bag, render
 from grass_nrsfm_ros.cli import main
+from grass_nrsfm_ros.commands.render import aligned_pair
 
 
 def decode_png(path):
@@ -96,7 +97,6 @@ def test_render_command_npz_and_bag(tmp_path, capsys):
 
 
 def test_estimate_is_aligned_to_truth_before_drawing():
-    from grass_nrsfm_ros.commands.render import aligned_pair
 
     rng = np.random.default_rng(4)
     truth = rng.normal(size=(3, 30)) + 5.0
