@@ -2,7 +2,7 @@
 a temporary folder), fed a synthetic sequence at 30 Hz from this process, its ``points``
 checked against ground truth; malformed clouds are interleaved with good ones.
 
-The node runs with the rigid solver of test_pipeline (injected through ``main``), so these tests
+The node runs with the rigid solver of test/doubles.py (injected through ``main``), so these tests
 exercise the node and the pipeline, not the Grassmannian solver.
 """
 import signal
