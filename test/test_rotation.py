@@ -162,7 +162,9 @@ def test_same_rotations_across_blas_threads():
     with threadpoolctl.threadpool_limits(2):
         b = estimate_rotations(W, candidates=range(1, 4))
     assert a.K == b.K and a.scores['rule'] == b.scores['rule']
-    assert rotation_error(a.R, b.R) < THREADS_DEGREES
+    difference = rotation_error(a.R, b.R)
+    print(f'rotations from 1 and 2 BLAS threads differ by {difference:.2g} degrees')
+    assert difference < THREADS_DEGREES
     assert rotation_error(a.R, R_true) == pytest.approx(rotation_error(b.R, R_true),
                                                         abs=THREADS_DEGREES)
 
