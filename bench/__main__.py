@@ -2,8 +2,8 @@
 
 Default: the quick subset (a few minutes on 2 cores). ``--full``: everything (hours: the
 paper-sized dense faces and 70k-point scale cases). ``--smoke``: each suite's smallest case
-(seconds), written to ``bench/results/smoke/``. Suites whose dependencies are missing record a
-skip with the reason.
+(seconds), written to ``bench/results/smoke/``. The reliability figures have their own
+script, ``python -m bench.reliability``; the node's load, ``python -m bench.load`` (ROS).
 """
 import argparse
 import importlib
@@ -32,10 +32,7 @@ def main(argv=None):
     mode = common.Mode('full' if args.full else 'smoke' if args.smoke else 'quick', args.out)
     for suite in args.only or SUITES:
         start = time.perf_counter()
-        try:
-            payload = importlib.import_module(f'bench.{suite}').run(mode)
-        except ImportError as exc:       # a dependency of the whole suite is missing
-            payload = {'rows': [], 'skipped': [{'why': f'{type(exc).__name__}: {exc}'}]}
+        payload = importlib.import_module(f'bench.{suite}').run(mode)
         payload['seconds'] = time.perf_counter() - start
         path = common.write_result(mode, suite, payload)
         print(f'{suite}: {len(payload["rows"])} rows, {len(payload.get("skipped", []))} '

@@ -8,6 +8,8 @@ the same Dai rotations BMM gets ('pta_dai').
 """
 import numpy as np
 
+from grass_nrsfm_ros.nrsfm.metrics import e3d, e3d_akhter
+from grass_nrsfm_ros.nrsfm.synthetic import kinds
 from . import common
 from .published import published_for
 
@@ -16,8 +18,6 @@ PTA_K_MAX = 15
 
 def cases(mode):
     """Yield ``(name, family, W, S)``; missing data is skipped with a log line."""
-    from grass_nrsfm_ros.nrsfm.synthetic import kinds
-
     if mode.name == 'smoke':
         yield ('synthetic_bending', 'synthetic', *common.synthetic('bending', 10, 100))
         return
@@ -45,7 +45,6 @@ def cases(mode):
 
 
 def errors(S_est, S, family):
-    from grass_nrsfm_ros.nrsfm.metrics import e3d, e3d_akhter
     # perspective subsets: tracks in normalised image coordinates, ground truth in mm, so the
     # per-frame Procrustes also fits a scale there
     out = {'e3d': e3d(S_est, S, scale=family == 'perspective')}
@@ -74,15 +73,9 @@ def run_case(name, family, W, S):
     F, P = W.shape[0] // 2, W.shape[1]
     base = {'sequence': name, 'family': family, 'F': F, 'P': P}
     published = published_for(name)
-    R_dai, base_rot = None, {}
-    if common.missing('bmm') is None:
-        R_dai, wall, cpu = common.timed(common.dai_rotations, W)
-        base_rot = {'rotation_seconds_wall': wall, 'rotation_seconds_cpu': cpu}
+    R_dai, wall, cpu = common.timed(common.dai_rotations, W)
+    base_rot = {'rotation_seconds_wall': wall, 'rotation_seconds_cpu': cpu}
     for method in ('ours', 'rigid', 'bmm', 'pta', 'pta_dai'):
-        why = common.missing('bmm' if method == 'pta_dai' else method)
-        if why:
-            skipped.append({'sequence': name, 'method': method, 'why': why})
-            continue
         common.log(f'accuracy: {name} ({F} x {P}) {method}')
         try:
             if method == 'pta':

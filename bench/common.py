@@ -1,9 +1,8 @@
-"""Shared pieces of the benchmark suites: modes, methods (imported lazily, so a suite runs with
-whatever part of the package exists), data sets, timing, JSON output and curve fits.
+"""Shared pieces of the benchmark suites: modes, methods, data sets, timing, JSON output and
+curve fits.
 
 A method is called as ``solve(name, W, **options)`` and returns a dict with ``S: (3F, P)``
-camera frame, ``R: (F, 3, 3)`` and optional ``report``; :func:`missing` tells why a method cannot
-run (its module is not there yet) so suites record a skip instead of failing.
+camera frame, ``R: (F, 3, 3)`` and optional ``report``.
 """
 from dataclasses import dataclass
 import datetime
@@ -16,6 +15,13 @@ import sys
 import time
 
 import numpy as np
+
+from grass_nrsfm_ros.nrsfm import GrassmannNRSfM
+from grass_nrsfm_ros.nrsfm.baselines import bmm
+from grass_nrsfm_ros.nrsfm.faces import make_face_sequence
+from grass_nrsfm_ros.nrsfm.rotation import estimate_rotations, rigid_factorisation
+from grass_nrsfm_ros.nrsfm.synthetic import make_sequence
+from grass_nrsfm_ros.nrsfm.trajectory_basis import DEFAULT_K, pta
 
 BENCH = Path(__file__).resolve().parent
 REPO = BENCH.parent
@@ -42,22 +48,8 @@ class Mode:
 
 # --------------------------------------------------------------------------- methods
 
-def missing(method):
-    """None if ``method`` can run here, else the reason (an ImportError message)."""
-    modules = {'ours': 'grass_nrsfm_ros.nrsfm.admm',
-               'rigid': 'grass_nrsfm_ros.nrsfm.rotation',
-               'bmm': 'grass_nrsfm_ros.nrsfm.baselines',
-               'pta': 'grass_nrsfm_ros.nrsfm.rotation'}
-    try:
-        __import__(modules[method])
-    except ImportError as exc:
-        return f'{modules[method]} not available ({exc})'
-    return None
-
-
 def dai_rotations(W):
     """Rotations of ``W: (2F, P)`` by Dai et al.'s method (K chosen from the data)."""
-    from grass_nrsfm_ros.nrsfm.rotation import estimate_rotations
     return estimate_rotations(W).R
 
 
@@ -69,24 +61,16 @@ def solve(method, W, *, R=None, params=None, K_traj=None):
     ``K_traj``: PTA's number of DCT vectors (default: its module default).
     """
     if method == 'ours':
-        from grass_nrsfm_ros.nrsfm import GrassmannNRSfM
         res = GrassmannNRSfM(**(params or {})).fit(W)
         return {'S': res.S, 'R': res.R, 'report': res.report, 'result': res}
     if method == 'rigid':
-        from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
         R_est, S = rigid_factorisation(W)
         return {'S': S, 'R': R_est, 'report': None}
     if method == 'bmm':
-        from grass_nrsfm_ros.nrsfm.baselines import bmm
         R_used = dai_rotations(W) if R is None else R
-        try:
-            out = bmm(W, R_used, return_report=True)
-        except TypeError:
-            out = bmm(W, R_used)
-        S, report = out if isinstance(out, tuple) else (out, None)
+        S, report = bmm(W, R_used, return_report=True)
         return {'S': S, 'R': R_used, 'report': report}
     if method == 'pta':
-        from grass_nrsfm_ros.nrsfm.trajectory_basis import DEFAULT_K, pta
         R_used, S = pta(W, R=R, K=K_traj or DEFAULT_K)
         return {'S': S, 'R': R_used, 'report': None}
     raise ValueError(f'unknown method {method!r}; choose from {METHODS}')
@@ -147,7 +131,6 @@ def load_dataset(name):
 
 def synthetic(kind, F, P, seed=0, noise=0.0, clustered=0.0):
     """``(W, S)`` of :func:`grass_nrsfm_ros.nrsfm.synthetic.make_sequence` (orbiting camera)."""
-    from grass_nrsfm_ros.nrsfm.synthetic import make_sequence
     seq = make_sequence(kind, n_frames=F, n_points=P, seed=seed, noise=noise,
                         clustered=clustered)
     return seq.W, seq.S
@@ -155,7 +138,6 @@ def synthetic(kind, F, P, seed=0, noise=0.0, clustered=0.0):
 
 def dense_face(F, P, seed=0):
     """``(W, S)`` of a Surrey-model dense face, or None without the model."""
-    from grass_nrsfm_ros.nrsfm.faces import make_face_sequence
     try:
         seq = make_face_sequence(n_frames=F, n_points=P, seed=seed)
     except FileNotFoundError:

@@ -10,7 +10,7 @@ and keeps shared memory, as /proc/PID/maps shows).
     python -m bench.input_qos --seconds 10 --points 2000
 
 Lost = sent - the node's 'messages received' (its diagnostics, once it has settled); the
-node runs the rigid stand-in solver of test/test_pipeline without context frames, so it
+node runs the rigid stand-in solver of test/doubles.py without context frames, so it
 solves windows meanwhile. Results: ``bench/results/input_qos.json`` and
 ``bench/results/input_qos.png`` (``--name`` changes the stem).
 """

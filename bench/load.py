@@ -10,7 +10,7 @@ completeness (messages in the recorded bag vs sent and published).
     python -m bench.load --seconds 20 --points 2000 --solver rigid
 
 ``--solver grassmann`` (default) runs the node as shipped (GrassmannNRSfM, 60 context frames);
-``rigid`` injects the rigid solver of test/test_pipeline without context frames (the node and
+``rigid`` injects the rigid solver of test/doubles.py without context frames (the node and
 pipeline under load, not the Grassmannian solver's speed). Results go
 to ``bench/results/reliability.json`` under ``load`` (and are printed).
 """
@@ -25,8 +25,17 @@ import tempfile
 import time
 
 import numpy as np
+from std_msgs.msg import Header
+
+from grass_nrsfm_ros import bag, cloud
+from grass_nrsfm_ros.nrsfm.measurement import as_frames
+from grass_nrsfm_ros.nrsfm.synthetic import make_sequence
+from grass_nrsfm_ros.params import all_params
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / 'test'))          # the node-over-DDS helpers of the tests
+import rosutil  # noqa: E402, I100
+
 RESULTS = REPO / 'bench' / 'results' / 'reliability.json'
 DEFAULT_LAUNCH = 'import sys; from grass_nrsfm_ros.node import main; sys.exit(main())'
 
@@ -62,17 +71,20 @@ def sample(start, proc, feeder):
 
 def clouds(points, n_frames=90, seed=0):
     """``n_frames`` distinct tracks clouds (rclpy) of a bending sheet, re-stamped when sent."""
-    from std_msgs.msg import Header
-
-    from grass_nrsfm_ros import cloud
-    from grass_nrsfm_ros.nrsfm.measurement import as_frames
-    from grass_nrsfm_ros.nrsfm.synthetic import make_sequence
-
     seq = make_sequence('bending', n_frames, points, camera='orbit', seed=seed)
     W = seq.W * 200 + 320
     ids = np.arange(points, dtype=np.uint32)
     return [cloud.encode_tracks(ids, uv.T, Header(frame_id='camera'))
             for uv in as_frames(W, 2)]
+
+
+def latency_figures(latencies):
+    """p50 / p95 / max (ms) of the tracks -> points latencies measured by the feeder."""
+    if not latencies:
+        return None
+    p50, p95 = np.percentile(latencies, [50, 95])
+    return dict(p50=round(1e3 * p50, 1), p95=round(1e3 * p95, 1),
+                max=round(1e3 * max(latencies), 1), n=len(latencies))
 
 
 def memory_figures(samples, warm_frames, warm_solves=2):
@@ -108,15 +120,8 @@ def run(seconds=600.0, points=30_000, rate=30.0, solver='rigid', window=30, stri
         record=True, tmp=None, log=print, depth=10, context=None):
     """Run the load; return the figures (a dict). ``context``: the node's context_frames
     (default: 0 for the rigid stand-in, as in the tests; the node's default for grassmann)."""
-    sys.path.insert(0, str(REPO / 'test'))
     tmp = Path(tmp or tempfile.mkdtemp(prefix='grass_load_'))
     env = isolated_env(tmp)
-    import rosutil
-
-    from grass_nrsfm_ros import bag
-
-    from grass_nrsfm_ros.params import all_params
-
     launch = rosutil.RIGID_LAUNCH if solver == 'rigid' else DEFAULT_LAUNCH
     if context is None:
         context = 0 if solver == 'rigid' else next(
@@ -145,7 +150,7 @@ def run(seconds=600.0, points=30_000, rate=30.0, solver='rigid', window=30, stri
             msg = messages[k % len(messages)]
             msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(
                 t0_ns + int(k * period * 1e9), 10 ** 9)
-            feeder.pub.publish(msg)
+            feeder.publish(msg)
             if time.monotonic() >= next_sample:
                 rss.append(sample(start, proc, feeder))
                 next_sample += 1.0
@@ -161,7 +166,8 @@ def run(seconds=600.0, points=30_000, rate=30.0, solver='rigid', window=30, stri
                    stride=stride, context_frames=context, sent=n_total,
                    send_seconds=round(send_seconds, 1),
                    sends_late_by_more_than_a_period=late, exit_code=code,
-                   points_clouds_received_by_subscriber=received_points)
+                   points_clouds_received_by_subscriber=received_points,
+                   latency_ms=latency_figures(feeder.latencies))
     if counts is None:
         figures['error'] = 'diagnostics never settled'
         figures['last_diagnostics'] = feeder.diagnostic_values()

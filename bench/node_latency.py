@@ -8,11 +8,10 @@ the e3D of the streamed clouds against the whole-sequence solve.
 
     OPENBLAS_NUM_THREADS=1 python bench/node_latency.py [--tracks 1000 10000 30000]
 
-Uses GrassmannNRSfM when it is installed, else the rigid solver of test/test_pipeline.py (said
-so in the output). Timings are noisy on a shared machine: CPU seconds are printed too.
+Uses GrassmannNRSfM and the bending sheet of test/doubles.py. Timings are noisy on a shared
+machine: CPU seconds are printed too.
 """
 import argparse
-import importlib.util
 from pathlib import Path
 import statistics
 import sys
@@ -21,29 +20,13 @@ import time
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
+sys.path[:0] = [str(REPO), str(REPO / 'test')]     # run as a script: the checkout and test/
 
+from doubles import bending_sheet  # noqa: E402
 from grass_nrsfm_ros import cloud  # noqa: E402
+from grass_nrsfm_ros.nrsfm import GrassmannNRSfM, WarmStart  # noqa: E402
 from grass_nrsfm_ros.nrsfm.metrics import e3d  # noqa: E402
 from grass_nrsfm_ros.pipeline import reconstruct_sequence, SlidingWindow  # noqa: E402
-
-
-def test_helpers():
-    spec = importlib.util.spec_from_file_location('test_pipeline',
-                                                  REPO / 'test' / 'test_pipeline.py')
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-def solver():
-    """``(factory, warm_start_class, name)``: the Grassmannian solver or the test's rigid one."""
-    helpers = test_helpers()
-    try:
-        from grass_nrsfm_ros.nrsfm import GrassmannNRSfM, WarmStart
-        return GrassmannNRSfM, WarmStart, 'GrassmannNRSfM (defaults)'
-    except ImportError:
-        return helpers.RigidALS, helpers.RigidWarmStart, 'RigidALS (test solver: no Grassmann)'
 
 
 class Counting:
@@ -67,13 +50,13 @@ class Counting:
 
 
 def latency(tracks, factory, warm_cls, frames=60):
-    W, S, ids = test_helpers().make_sequence(F=frames, P=tracks, noise=0.5)
+    W, S, ids = bending_sheet(F=frames, P=tracks, noise=0.5)
     pipe = SlidingWindow(factory, warm_start_class=warm_cls)
     stamps = np.arange(frames) * 33_000_000
     uv = W.reshape(frames, 2, tracks).transpose(0, 2, 1)
     walls, cpus = [], []
     header = None
-    try:
+    try:        # std_msgs comes with ROS 2 (optional): without it the encoding is not timed
         from std_msgs.msg import Header
         header = Header(frame_id='camera')
     except ImportError:
@@ -95,7 +78,7 @@ def latency(tracks, factory, warm_cls, frames=60):
 
 
 def accuracy(factory, warm_cls, frames=90, tracks=1000):
-    W, S, ids = test_helpers().make_sequence(F=frames, P=tracks, noise=0.5)
+    W, S, ids = bending_sheet(F=frames, P=tracks, noise=0.5)
     order = np.argsort(ids)
     stamps = np.arange(frames)
     frames_in = [(ids, W[2 * f:2 * f + 2].T) for f in range(frames)]
@@ -116,8 +99,8 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('--tracks', type=int, nargs='+', default=[1000, 10000, 30000])
     args = parser.parse_args()
-    factory, warm_cls, name = solver()
-    print(f'solver: {name}; window 30, stride 10')
+    factory, warm_cls = GrassmannNRSfM, WarmStart
+    print('solver: GrassmannNRSfM (defaults); window 30, stride 10')
     for tracks in args.tracks:
         latency(tracks, factory, warm_cls)
     accuracy(factory, warm_cls)

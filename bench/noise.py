@@ -4,6 +4,7 @@ the baselines on one sequence (the dense face where the model exists, else synth
 """
 import numpy as np
 
+from grass_nrsfm_ros.nrsfm.metrics import e3d
 from . import common, plot
 from .published import PUBLISHED_NOISE_SDG
 
@@ -11,17 +12,11 @@ METHODS = ('ours', 'rigid', 'bmm', 'pta')
 
 
 def run(mode):
-    from grass_nrsfm_ros.nrsfm.metrics import e3d
-
     name, (W, S) = common.study_sequence(mode)
     ratios = mode.pick((0.03,), (0.0, 0.01, 0.03, 0.05), (0.0, 0.01, 0.02, 0.03, 0.04, 0.05))
     repeats = mode.pick(1, 2, 10)
     rows, skipped = [], []
     for method in METHODS:
-        why = common.missing(method)
-        if why:
-            skipped.append({'method': method, 'why': why})
-            continue
         for r in ratios:
             errs, cpus = [], []
             for rep in range(repeats if r > 0 else 1):

@@ -4,6 +4,7 @@ self-expression coefficients C_s / C_t as images where the result exposes them).
 """
 import numpy as np
 
+from grass_nrsfm_ros.nrsfm.metrics import e3d
 from . import common, plot
 
 ABLATION = {'none': dict(spatial=False, temporal=False), 'spatial': dict(spatial=True,
@@ -37,11 +38,6 @@ def structure(result):
 
 
 def run(mode):
-    from grass_nrsfm_ros.nrsfm.metrics import e3d
-
-    why = common.missing('ours')
-    if why:
-        return {'rows': [], 'skipped': [{'method': 'ours', 'why': why}], 'plots': []}
     name, (W, S) = common.study_sequence(mode)
     sweeps = {'N_s': mode.pick((2,), (2, 3, 5), (1, 2, 3, 4, 5, 6, 8)),
               'K_s': mode.pick((2,), (1, 2, 4, 8), (1, 2, 4, 8, 16, 32))}

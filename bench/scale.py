@@ -3,6 +3,7 @@ for ours and the baselines, each case in its own process; the growth exponents (
 squares); and for ours the time per ADMM iteration over the time of one economy SVD of S# of the
 same size.
 """
+import argparse
 import json
 from pathlib import Path
 import subprocess
@@ -117,10 +118,8 @@ NOTES = ['each case runs in a fresh process; solve_extra_mb = peak RSS after the
 
 def run(mode):
     timeout = mode.pick(120, 300, 1800)
-    methods = [m for m in METHODS if not common.missing(m)]
-    skipped = [{'method': m, 'why': common.missing(m)} for m in METHODS if m not in methods]
-    rows, more = run_cases(grid(mode), methods, timeout)
-    out = {'rows': rows, 'skipped': skipped + more, 'exponents': exponents(rows),
+    rows, skipped = run_cases(grid(mode), METHODS, timeout)
+    out = {'rows': rows, 'skipped': skipped, 'exponents': exponents(rows),
            'notes': NOTES}
     if mode.name != 'smoke':
         out['plots'] = plots(rows, mode.out_dir)
@@ -157,7 +156,6 @@ def main(argv=None):
     """``python -m bench.scale [--methods ours] [--P 1000 10000 ...] [--F 30 100]
     [--rows JSON]``: the P sweeps only, written to ``<out>/scale_sweep.json`` and printed as a
     table (``--rows``: re-print the table of an earlier result without solving)."""
-    import argparse
     parser = argparse.ArgumentParser(prog='python -m bench.scale', description=main.__doc__)
     parser.add_argument('--methods', nargs='+', default=['ours'], choices=METHODS)
     parser.add_argument('--P', nargs='+', type=int, default=[1000, 10000, 30000, 70000])

@@ -9,6 +9,7 @@ import time
 
 import numpy as np
 
+from grass_nrsfm_ros.nrsfm.measurement import as_frames, to_world
 from . import common
 
 
@@ -38,7 +39,6 @@ def main(argv):
            'rss_before_mb': before, 'rss_peak_mb': maxrss_mb(), 'W_mb': W.nbytes / 2 ** 20}
     row['solve_extra_mb'] = max(0.0, row['rss_peak_mb'] - before)
     if method == 'ours':
-        from grass_nrsfm_ros.nrsfm.measurement import as_frames, to_world
         report = out['report']
         shape_s = (report.seconds or {}).get('shape', wall)
         iters = max(int(report.iterations), 1)

@@ -12,14 +12,17 @@
 
 Frames are fed as fast as the pipeline takes them, on one thread, with no window skipped:
 ``fps = frames published / (time in add_frame + solve)``; a window's latency is from the moment
-it closed (``Window.closed_at``) to the end of its solve. The solver is GrassmannNRSfM (defaults)
-where it exists, else the rigid factorisation (recorded in the JSON).
+it closed (``Window.closed_at``) to the end of its solve. The solver is GrassmannNRSfM (the
+pipeline's default factory, recorded in the JSON as 'ours').
 """
 import time
 from types import SimpleNamespace
 
 import numpy as np
 
+from grass_nrsfm_ros.nrsfm.metrics import e3d
+from grass_nrsfm_ros.nrsfm.synthetic import kinds
+from grass_nrsfm_ros.pipeline import default_solver_factory, reconstruct_sequence, SlidingWindow
 from . import common, plot
 
 PIXELS_PER_UNIT = 200.0
@@ -30,7 +33,7 @@ VARIANTS = (('model', {}), ('off', {'warm_start': 'off'}), ('full', {'warm_start
 
 class RigidSolver:
     """``fit(W, init=None)`` by rigid factorisation (ignores ``init``): the per-window
-    reference, and the solver when the ADMM one is absent."""
+    reference."""
 
     def fit(self, W, init=None):
         out = common.solve('rigid', W)
@@ -56,19 +59,8 @@ class Counting:
         return Fit()
 
 
-def solver_factory():
-    """``(factory, name)`` or ``(None, why)``."""
-    if not common.missing('ours'):
-        from grass_nrsfm_ros.pipeline import default_solver_factory
-        return default_solver_factory(), 'ours'
-    if not common.missing('rigid'):
-        return RigidSolver, 'rigid (GrassmannNRSfM not available)'
-    return None, common.missing('rigid')
-
-
 def streamed(W, factory, **options):
     """Run ``W: (2F, P)`` through a SlidingWindow; ``(S: (3F, P) as published, pipeline)``."""
-    from grass_nrsfm_ros.pipeline import reconstruct_sequence, SlidingWindow
     F, P = W.shape[0] // 2, W.shape[1]
     ids = np.arange(P, dtype=np.uint32)
     pipe = SlidingWindow(factory, window_size=WINDOW, window_stride=STRIDE, **options)
@@ -96,7 +88,6 @@ def per_window(fits, solve_cpu):
 def compare(name, W, S, factory):
     """One accuracy row: whole vs streamed (each warm-start variant) vs rigid per window, with
     iterations and CPU seconds per window."""
-    from grass_nrsfm_ros.nrsfm.metrics import e3d
     whole, wall, cpu = common.timed(factory().fit, W)
     row = {'sequence': name, 'F': W.shape[0] // 2, 'P': W.shape[1],
            'e3d_whole': e3d(whole.S, S), 'whole_cpu_s': cpu}
@@ -120,7 +111,6 @@ def compare(name, W, S, factory):
 
 def accuracy_sequences(mode):
     """``[(name, W, S)]`` for the accuracy comparison."""
-    from grass_nrsfm_ros.nrsfm.synthetic import kinds
     out = []
     faces = mode.pick((), ((60, 3000),), ((60, 3000), (99, 3000)))
     for F, P in faces:
@@ -139,8 +129,6 @@ def accuracy_sequences(mode):
 
 
 def stream(P, n_frames, window_size, stride, factory):
-    from grass_nrsfm_ros.pipeline import SlidingWindow
-
     W, _ = common.synthetic('bending', n_frames, P)
     W = PIXELS_PER_UNIT * W + 320.0
     ids = np.arange(P, dtype=np.uint32)
@@ -172,21 +160,13 @@ def stream(P, n_frames, window_size, stride, factory):
 
 
 def run(mode):
-    try:
-        import grass_nrsfm_ros.pipeline  # noqa: F401
-    except ImportError as exc:
-        why = f'grass_nrsfm_ros.pipeline not available ({exc})'
-        return {'rows': [], 'skipped': [{'why': why}]}
-    factory, solver = solver_factory()
-    if factory is None:
-        return {'rows': [], 'skipped': [{'why': solver}]}
+    factory, solver = default_solver_factory(), 'ours'
     rows, skipped, accuracy = [], [], []
-    if solver == 'ours':
-        for name, W, S in accuracy_sequences(mode):
-            try:
-                accuracy.append(compare(name, W, S, factory))
-            except Exception as exc:
-                skipped.append({'sequence': name, 'why': f'{type(exc).__name__}: {exc}'})
+    for name, W, S in accuracy_sequences(mode):
+        try:
+            accuracy.append(compare(name, W, S, factory))
+        except Exception as exc:
+            skipped.append({'sequence': name, 'why': f'{type(exc).__name__}: {exc}'})
     tracks = mode.pick((1000,), (1000, 10000), (1000, 10000, 30000))
     n_frames, window, stride = mode.pick((15, 10, 5), (50, WINDOW, STRIDE),
                                          (90, WINDOW, STRIDE))

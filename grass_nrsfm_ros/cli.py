@@ -1,6 +1,7 @@
 """``grass-nrsfm``: the command line. Each subcommand lives in ``grass_nrsfm_ros.commands.<name>``
 and provides ``add_arguments(parser)`` and ``run(args) -> int`` (the exit code); modules are
-imported only when their subcommand runs, so ``grass-nrsfm evaluate`` needs no ROS.
+imported only when their subcommand runs, so ``grass-nrsfm evaluate`` needs no ROS; a command
+that needs ROS 2 (``node``, ``replay``) says so in one line where rclpy is missing.
 
 Errors are reported once, here: a known error (bad input, missing file) becomes one line on
 stderr and exit code 2.
@@ -19,10 +20,26 @@ COMMANDS = {
     'recover': 'Rebuild a killed recording (no metadata, no index) into a readable bag.',
     'render': 'Draw reconstructed frames (and ground truth) as a PNG.',
 }
+#: the ROS 2 packages that the optional 'ros' extra (or a sourced ROS install) provides
+ROS_PACKAGES = ('rclpy', 'rosgraph_msgs', 'sensor_msgs', 'std_msgs', 'diagnostic_msgs',
+                'std_srvs', 'visualization_msgs', 'builtin_interfaces', 'rcl_interfaces')
 
 
 class UserError(Exception):
     """An error the user can fix (bad file, bad argument); printed without a traceback."""
+
+
+def command_module(name):
+    """The module of subcommand ``name``; exit code 2 with one line where it needs ROS 2 and
+    ROS 2 is not installed."""
+    try:
+        return importlib.import_module(f'grass_nrsfm_ros.commands.{name}')
+    except ModuleNotFoundError as exc:
+        if (exc.name or '').split('.')[0] not in ROS_PACKAGES:
+            raise
+        print(f'grass-nrsfm {name}: error: needs ROS 2 Jazzy ({exc.name} is missing): '
+              "pip install 'grass_nrsfm_ros[ros]' or source /opt/ros/jazzy", file=sys.stderr)
+        raise SystemExit(2) from None
 
 
 def build_parser(argv):
@@ -33,18 +50,19 @@ def build_parser(argv):
     for name, help_text in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
         if name == chosen:
-            importlib.import_module(f'grass_nrsfm_ros.commands.{name}').add_arguments(p)
+            command_module(name).add_arguments(p)
     return parser
 
 
 def main(argv=None):
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ['node']:
-        # ROS arguments (--ros-args ...) go to rclpy untouched.
+        # ROS arguments (--ros-args ...) go to rclpy untouched. Imported here, not at the top:
+        # the node needs rclpy (the optional 'ros' extra) and the other commands do not.
         from grass_nrsfm_ros import node
         return node.main(['grass-nrsfm-node'] + argv[1:])
     args = build_parser(argv).parse_args(argv)
-    module = importlib.import_module(f'grass_nrsfm_ros.commands.{args.command}')
+    module = command_module(args.command)
     try:
         return int(module.run(args) or 0)
     except (UserError, FileNotFoundError, ValueError) as exc:

@@ -191,6 +191,7 @@ def cloud_layout(arr, point_field):
 
 def to_pointcloud2(arr, header):
     """sensor_msgs/PointCloud2 (see :func:`cloud_layout`) holding structured ``arr: (P,)``."""
+    # imported here: sensor_msgs comes with ROS 2 (the optional extra); decoding needs none
     from sensor_msgs.msg import PointCloud2, PointField
 
     layout = cloud_layout(arr, PointField)

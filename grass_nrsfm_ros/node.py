@@ -23,6 +23,7 @@ or ``python -m grass_nrsfm_ros.node --ros-args ...``.
 from collections import deque
 import os
 import re
+import signal
 import sys
 import threading
 import time
@@ -41,6 +42,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.serialization import deserialize_message
+from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
@@ -50,6 +52,7 @@ from grass_nrsfm_ros.live import make_pipeline
 from grass_nrsfm_ros.pipeline import FrameError, WindowError
 
 POINTCLOUD2 = 'sensor_msgs/msg/PointCloud2'
+SPIN_PERIOD_S = 0.1          # longest delay before the spin loop sees Ctrl-C / SIGTERM
 LOG_PERIOD_S = 10.0          # the same kind of problem is logged at most once per period
 ACK_TIMEOUT_S = 2.0           # longest wait for subscribers to take a burst of clouds
 INPUT_DEPTH = 100            # tracks messages the node's reader keeps (3 s at 30 Hz)
@@ -566,22 +569,31 @@ class ReconstructionNode(Node):
 def main(args=None, *, solver_factory=None, warm_start_class=None):
     """Run the node until Ctrl-C / SIGTERM; returns the exit code (2: invalid parameters)."""
     sys.setswitchinterval(GIL_SWITCH_S)
-    rclpy.init(args=args)
+    # Ctrl-C / SIGTERM set a flag that the spin loop reads (at most SPIN_PERIOD_S later).
+    # rclpy's own handlers shut the context down from C at once, racing the start-up and the
+    # executor: a signal just after the start-up line ended in a traceback and exit code 1
+    # ('context is not valid' building the wait set, or 'rcl_shutdown already called').
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    node = None
     try:
-        node = ReconstructionNode(solver_factory, warm_start_class)
-    except (ValueError, ParameterException) as exc:
-        print(f'grass_nrsfm node: error: {exc}', file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
-    try:
+        try:
+            node = ReconstructionNode(solver_factory, warm_start_class)
+        except (ValueError, ParameterException) as exc:
+            print(f'grass_nrsfm node: error: {exc}', file=sys.stderr)
+            return 2
         executor = SingleThreadedExecutor()
         executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
+        while not stop.is_set():
+            executor.spin_once(timeout_sec=SPIN_PERIOD_S)
+    except ExternalShutdownException:
         pass
     finally:
-        node.close()
-        node.destroy_node()
+        if node is not None:
+            node.close()
+            node.destroy_node()
         rclpy.try_shutdown()
     return 0
 

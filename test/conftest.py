@@ -46,15 +46,3 @@ def ros_env(tmp_path, monkeypatch):
         monkeypatch.setenv(key, value)
     monkeypatch.delenv('ROS_LOCALHOST_ONLY', raising=False)
     return {**os.environ, 'PYTHONPATH': os.pathsep.join([str(REPO), str(REPO / 'test')])}
-
-
-def pytest_collection_modifyitems(config, items):
-    """Tests marked ``ros`` run real node processes over DDS; their timing depends on the
-    machine's load, so each is retried up to twice (pytest-rerunfailures, which colcon brings;
-    the summary reports every rerun). A deterministic failure still fails."""
-    if not config.pluginmanager.hasplugin('rerunfailures'):
-        return
-    for item in items:
-        if item.get_closest_marker('ros') is not None and \
-                item.get_closest_marker('flaky') is None:
-            item.add_marker(pytest.mark.flaky(reruns=2, reruns_delay=1))

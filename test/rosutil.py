@@ -24,7 +24,7 @@ TEST_DIR = Path(__file__).resolve().parent
 #: the node's window_size, 30, as the README advises: with 10, a window's burst overwrote 3 of
 #: 105 clouds in this Python subscriber's history while both cores were busy)
 POINTS_DEPTH = 10
-RIGID_LAUNCH = ('import sys; from test_pipeline import RigidALS, RigidWarmStart; '
+RIGID_LAUNCH = ('import sys; from doubles import RigidALS, RigidWarmStart; '
                 'from grass_nrsfm_ros.node import main; '
                 'sys.exit(main(solver_factory=RigidALS, warm_start_class=RigidWarmStart))')
 
@@ -52,6 +52,7 @@ class Feeder:
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 10)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
+        self._woken = threading.Condition()          # notified after every executor wake-up
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._spin, daemon=True)
         self._thread.start()
@@ -83,12 +84,18 @@ class Feeder:
     def _spin(self):
         while not self._stop.is_set():
             self.executor.spin_once(timeout_sec=0.05)
+            with self._woken:
+                self._woken.notify_all()
 
     def wait_for(self, condition, timeout):
-        deadline = time.monotonic() + timeout
-        while not condition() and time.monotonic() < deadline:
-            time.sleep(0.05)
-        return condition()
+        """Wait until ``condition()`` holds or ``timeout`` s pass; return ``condition()``.
+
+        It is checked after every wake-up of the executor: at once when a message (points,
+        diagnostics) has been handled. Graph changes (a peer matched or gone) raise no callback
+        in rclpy's Python API, so the executor also wakes every 50 ms without one and the
+        condition is checked then."""
+        with self._woken:
+            return self._woken.wait_for(condition, timeout)
 
     def node_reports(self, since):
         """``{key: value}`` of the newest diagnostics received after ``since`` (monotonic), or
@@ -129,37 +136,49 @@ class Feeder:
 
     def diagnostic_values(self):
         """``{key: value}`` of the newest diagnostics status (strings), or {}."""
-        if not self.diagnostics:
-            return {}
-        return {kv.key: kv.value for kv in self.diagnostics[-1].status[0].values}
+        return status_values(self.diagnostics[-1]) if self.diagnostics else {}
 
-    def accounted(self, sent, timeout=30, quiet=1.5):
+    def accounted(self, sent, timeout=30, reports=2):
         """Wait until the node's diagnostics count ``sent`` messages received, report the solver
-        idle (no solve running, none waiting) and stay unchanged for ``quiet`` s; return them
-        as ints (None on timeout). Then every message is accounted for: ``messages received ==
-        dropped messages + frames published + frames lost + frames pending``. (Without the
-        'solver busy' check, a solve longer than ``quiet`` looked like the end and left its
-        frames pending.)"""
+        idle (no solve running, none waiting), and the last ``reports`` diagnostics (one a
+        second) give the same counts; return them as ints (None on timeout). Then every
+        message is accounted for: ``messages received == dropped messages + frames published
+        + frames lost + frames pending``. (Without the 'solver busy' check, a solve longer than
+        the quiet period once used here looked like the end and left its frames pending.)"""
         keys = ('messages received', 'dropped messages', 'frames published', 'frames lost',
                 'frames pending', 'windows solved', 'dropped windows')
-        deadline, last, since = time.monotonic() + timeout, None, time.monotonic()
-        while time.monotonic() < deadline:
-            values = self.diagnostic_values()
-            now = tuple(values.get(k) for k in keys)
-            if now != last:
-                last, since = now, time.monotonic()
-            elif (values and int(values['messages received']) >= sent
-                  and values.get('solver busy') == 'False'
-                  and time.monotonic() - since >= quiet):
-                return {k: int(values[k]) for k in keys}
-            time.sleep(0.1)
-        return None
+
+        def settled():
+            latest = [status_values(msg) for msg in self.diagnostics[-reports:]]
+            if len(latest) < reports or any(v.get('solver busy') != 'False' for v in latest):
+                return False
+            counts = {tuple(v.get(k) for k in keys) for v in latest}
+            return len(counts) == 1 and int(latest[-1]['messages received']) >= sent
+
+        if not self.wait_for(settled, timeout):
+            return None
+        values = self.diagnostic_values()
+        return {k: int(values[k]) for k in keys}
 
     def close(self):
         self._stop.set()
         self._thread.join()
         self.node.destroy_node()
         rclpy.shutdown(context=self.context)
+
+
+def publish(feeder, messages, period=1 / 30):
+    """Publish ``messages`` on the feeder's ``tracks`` at a sensor's rate, one per ``period`` s
+    (a rate, not a wait)."""
+    start = time.monotonic()
+    for i, msg in enumerate(messages):
+        time.sleep(max(0.0, start + i * period - time.monotonic()))
+        feeder.publish(msg)
+
+
+def status_values(msg):
+    """``{key: value}`` (strings) of the first status of a DiagnosticArray."""
+    return {kv.key: kv.value for kv in msg.status[0].values}
 
 
 def unique_namespace():

@@ -18,6 +18,7 @@ import pytest
 
 from conftest import data_root, load_dataset
 from grass_nrsfm_ros.nrsfm import GrassmannNRSfM
+from grass_nrsfm_ros.nrsfm.faces import make_face_sequence
 from grass_nrsfm_ros.nrsfm.metrics import e3d, e3d_akhter
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
 from grass_nrsfm_ros.nrsfm.synthetic import make_sequence
@@ -174,7 +175,6 @@ def face_sequence(**kwargs):
     root = data_root()
     if root is None or not (root / 'sfm_face' / 'sfm_face.npz').is_file():
         pytest.skip('Surrey face model not found (set GRASS_NRSFM_DATA)')
-    from grass_nrsfm_ros.nrsfm.faces import make_face_sequence
     return make_face_sequence(model=root / 'sfm_face' / 'sfm_face.npz', **kwargs)
 
 

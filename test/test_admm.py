@@ -4,22 +4,9 @@ import numpy as np
 import pytest
 
 from conftest import data_root
+from doubles import wobbling_rotations
 from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM, InvalidInputError, WarmStart
-from grass_nrsfm_ros.nrsfm.rotation import align_rotations
-
-
-def smooth_rotations(F, rng, amplitude=0.5):
-    """``(F, 3, 3)`` rotations turning smoothly about all three axes."""
-    t = np.linspace(0, 1, F)
-    angles = amplitude * np.sin(2 * np.pi * rng.uniform(0.5, 1.5, 3)[:, None] * t
-                                + rng.uniform(0, 2 * np.pi, 3)[:, None])
-    out = []
-    for a, b, c in angles.T:
-        Rx = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
-        Ry = np.array([[np.cos(b), 0, np.sin(b)], [0, 1, 0], [-np.sin(b), 0, np.cos(b)]])
-        Rz = np.array([[np.cos(c), -np.sin(c), 0], [np.sin(c), np.cos(c), 0], [0, 0, 1]])
-        out.append(Rz @ Ry @ Rx)
-    return np.array(out)
+from grass_nrsfm_ros.nrsfm.rotation import align_rotations, rigid_factorisation
 
 
 def deforming_sheet(F=30, P=600, seed=0, noise=0.0):
@@ -33,7 +20,7 @@ def deforming_sheet(F=30, P=600, seed=0, noise=0.0):
     t = np.linspace(0, 1, F)
     weights = 0.3 * np.sin(2 * np.pi * np.array([0.7, 1.1, 1.6])[:, None] * t + [[0], [1], [2]])
     world = base[None] + np.einsum('mf,mcp->fcp', weights, modes)
-    R = smooth_rotations(F, rng, amplitude=1.0)
+    R = wobbling_rotations(F, rng, amplitude=1.0)
     cam = R @ world + rng.normal(size=(F, 3, 1))             # plus a translation per frame
     W = cam[:, :2, :].reshape(2 * F, P)
     if noise:
@@ -142,8 +129,8 @@ def test_warm_start_with_true_shapes_converges_in_fewer_iterations():
 
 def test_align_rotations_recovers_world_rotation_and_flip():
     rng = np.random.default_rng(4)
-    R = smooth_rotations(10, rng)
-    Q = smooth_rotations(1, rng, amplitude=2.0)[0]
+    R = wobbling_rotations(10, rng)
+    Q = wobbling_rotations(1, rng, amplitude=2.0)[0]
     D = np.diag([1.0, 1.0, -1.0])
     est = D @ (R @ Q.T) @ D                                  # other world frame, depth-flipped
     known = np.arange(10) < 6
@@ -207,7 +194,6 @@ def test_invalid_warm_start_raises():
 
 
 def test_given_rotation_method_skips_the_check_and_is_reported():
-    from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
     W, S, R = deforming_sheet(F=20, P=300, seed=2)
     checked = GrassmannNRSfM().fit(W).report
     assert checked.rotation_checked and checked.rotation_method in ('dai', 'rigid')

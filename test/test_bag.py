@@ -7,11 +7,21 @@ import subprocess
 import sys
 import textwrap
 
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+from mcap_ros2.writer import Writer as McapRos2Writer
 import numpy as np
 import pytest
+from rosbags.rosbag1 import Writer as Writer1
+from rosbags.rosbag2 import StoragePlugin, Writer as Writer2
+from rosbags.typesys import get_typestore, Stores
+import yaml
 
+from doubles import ChunkPipeline
 from grass_nrsfm_ros import bag
-from grass_nrsfm_ros.cloud import decode_tracks, tracks_array
+from grass_nrsfm_ros.cli import main
+from grass_nrsfm_ros.cloud import decode_tracks, encode_points, tracks_array
+from grass_nrsfm_ros.commands.reconstruct import reconstruct_bag
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -23,9 +33,6 @@ def synthetic_W(F=12, P=40, seed=0):
 
 def mcap_messages(mcap_path):
     """``[(topic, log_time, decoded)]`` read with mcap + mcap_ros2 (not rosbags)."""
-    from mcap.reader import make_reader
-    from mcap_ros2.decoder import DecoderFactory
-
     with open(mcap_path, 'rb') as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
         return [(ch.topic, m.log_time, dec)
@@ -49,9 +56,6 @@ def test_written_bag_is_read_by_mcap_ros2_with_equal_payloads(tmp_path):
 
 
 def test_clean_close_gives_metadata_and_summary(tmp_path):
-    import yaml
-    from mcap.reader import make_reader
-
     rec = bag.Recorder(tmp_path / 'rec', chunk_size=4096)
     rec.add_topic('/tracks', bag.POINTCLOUD2)
     for i in range(50):
@@ -76,11 +80,6 @@ def test_clean_close_gives_metadata_and_summary(tmp_path):
 
 def test_bags_written_by_other_libraries_are_read(tmp_path):
     """mcap_ros2 bare .mcap, rosbags sqlite3 rosbag2 and rosbags ROS 1 .bag -> read_tracks."""
-    from mcap_ros2.writer import Writer as McapRos2Writer
-    from rosbags.rosbag1 import Writer as Writer1
-    from rosbags.rosbag2 import StoragePlugin, Writer as Writer2
-    from rosbags.typesys import get_typestore, Stores
-
     W, _ = synthetic_W(F=5, P=7)
     uv = [W[2 * f:2 * f + 2].T for f in range(5)]
     ids = np.arange(7, dtype=np.uint32) * 3
@@ -130,11 +129,10 @@ def test_bags_written_by_other_libraries_are_read(tmp_path):
 @pytest.mark.ros
 def test_recorder_serializes_rclpy_messages(tmp_path):
     pytest.importorskip('rclpy')
+    # imported here: rclpy is the optional ROS extra; the rest of this file needs none
     from rclpy.serialization import deserialize_message
     from sensor_msgs.msg import PointCloud2
     from std_msgs.msg import Header
-
-    from grass_nrsfm_ros.cloud import encode_points
 
     rng = np.random.default_rng(3)
     rec = bag.Recorder(tmp_path / 'r')
@@ -171,7 +169,7 @@ KILLED_WRITER = textwrap.dedent("""
         rec.write('/tracks', bag.cloud_cdr(tracks_array(ids, np.zeros((80, 2))), i, 'c'), i)
         print(i + 1, flush=True)
         i += 1
-        time.sleep(0.002)
+        time.sleep(0.002)        # a 500 Hz source (a rate, not a wait): the writer keeps up
 """)
 
 
@@ -231,22 +229,22 @@ def test_unwritable_path_gives_one_error_and_writes_do_not_raise(tmp_path):
 
 
 FULL_DISK_WRITER = textwrap.dedent("""
-    import resource, signal, sys, time
+    import resource, signal, sys, threading, time
     from grass_nrsfm_ros import bag
     from grass_nrsfm_ros.cloud import tracks_array
     import numpy as np
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)          # writes past the limit -> EFBIG
     resource.setrlimit(resource.RLIMIT_FSIZE, (64 * 1024, 64 * 1024))
-    errors = []
-    rec = bag.Recorder(sys.argv[1], chunk_size=8192, queue_size=1000, on_error=errors.append)
+    errors, failed = [], threading.Event()
+    rec = bag.Recorder(sys.argv[1], chunk_size=8192, queue_size=1000,
+                       on_error=lambda e: (errors.append(e), failed.set()))
     rec.add_topic('/tracks', bag.POINTCLOUD2)
     raw = bag.cloud_cdr(tracks_array(np.arange(100), np.zeros((100, 2))), 0, 'c')
     for i in range(200):
         rec.write('/tracks', raw, i)
-    while rec.error is None:
-        time.sleep(0.01)
+    assert failed.wait(30)
     start = time.process_time()
-    time.sleep(2.0)                          # the failed recorder must not spin meanwhile
+    time.sleep(2.0)          # a measuring window: the failed recorder must not spin meanwhile
     idle_cpu = time.process_time() - start
     rec.close()
     print(len(errors), rec.written, rec.dropped, idle_cpu, repr(rec.error))
@@ -310,8 +308,6 @@ def test_writer_refuses_to_overwrite(tmp_path):
 
 
 def test_convert_round_trip_equals_W(tmp_path, dataset, capsys):
-    from grass_nrsfm_ros.cli import main
-
     W, S = dataset('akhter_mocap/yoga.npz')
     np.savez(tmp_path / 'in.npz', W=W, S=S)
     assert main(['convert', str(tmp_path / 'in.npz'), str(tmp_path / 'y'), '--rate', '25',
@@ -328,8 +324,6 @@ def test_convert_round_trip_equals_W(tmp_path, dataset, capsys):
 
 
 def test_convert_leaves_out_invisible_points_and_recover_cli(tmp_path, capsys):
-    from grass_nrsfm_ros.cli import main
-
     W, _ = synthetic_W(F=4, P=6)
     visible = np.ones((4, 6), bool)
     visible[1, [0, 4]] = False
@@ -348,30 +342,6 @@ def test_convert_leaves_out_invisible_points_and_recover_cli(tmp_path, capsys):
     assert 'has no array W' in capsys.readouterr().err
 
 
-class ChunkPipeline:
-    """A stand-in with SlidingWindow's protocol: windows of 3 frames, xyz = (u, v, u + v)."""
-
-    def __init__(self):
-        self.buffer = []
-
-    def add_frame(self, stamp_ns, ids, uv, frame_id=''):
-        if len(ids) < 3:
-            raise ValueError(f'{len(ids)} tracks')
-        self.buffer.append((stamp_ns, frame_id, ids, uv))
-        if len(self.buffer) == 3:
-            return self.flush()
-        return []
-
-    def flush(self):
-        window, self.buffer = self.buffer, []
-        return [window] if window else []
-
-    def solve(self, window):
-        from types import SimpleNamespace
-        return [SimpleNamespace(stamp_ns=s, frame_id=f, ids=i,
-                                xyz=np.c_[uv, uv.sum(axis=1)]) for s, f, i, uv in window]
-
-
 def test_reconstruct_bag_writes_points_for_every_frame_and_copies_inputs(tmp_path):
     W, S = synthetic_W(F=8, P=10)
     visible = np.ones((8, 10), bool)
@@ -379,8 +349,8 @@ def test_reconstruct_bag_writes_points_for_every_frame_and_copies_inputs(tmp_pat
     stamps = 10**9 + np.arange(8) * 1000
     bag.tracks_bag_from_arrays(W, stamps, tmp_path / 'in', S=S, visible=visible)
     calls = []
-    report = bag.reconstruct_bag(tmp_path / 'in', tmp_path / 'out', ChunkPipeline(),
-                                 progress=lambda d, t: calls.append((d, t)))
+    report = reconstruct_bag(tmp_path / 'in', tmp_path / 'out', ChunkPipeline(),
+                             progress=lambda d, t: calls.append((d, t)))
     assert (report.frames_in, report.frames_out, report.windows) == (8, 7, 3)
     assert len(report.refused) == 1 and 'frame 5' in report.refused[0]
     assert report.copied == {'/tracks': 8, '/ground_truth': 8}

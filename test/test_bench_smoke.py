@@ -9,6 +9,8 @@ import sys
 
 import pytest
 
+from bench import table
+
 REPO = Path(__file__).resolve().parents[1]
 SUITES = ('accuracy', 'noise', 'parameters', 'scale', 'streaming')
 #: numbers every row of a suite must carry, finite
@@ -63,7 +65,6 @@ def test_accuracy_errors_are_errors(smoke_results):
 
 
 def test_table_renders_and_rewrites_between_markers(smoke_results, tmp_path):
-    from bench import table
 
     text = table.markdown(smoke_results)
     assert text.startswith(table.START) and text.endswith(table.END)

@@ -3,6 +3,7 @@ real solves of a small synthetic sequence, their figures checked against ground 
 clear one-line errors (exit code 2) on bad input."""
 import json
 import re
+import sys
 
 import numpy as np
 import pytest
@@ -148,3 +149,14 @@ def test_visible_of_the_wrong_shape_is_refused_even_when_all_true(tmp_path, caps
     assert main(['reconstruct', str(tmp_path / 'in.npz'), '-o', str(tmp_path / 'o.npz'),
                  '--quiet']) == 2
     assert 'visible must have shape' in capsys.readouterr().err
+
+
+def test_a_command_that_needs_ros_says_so_in_one_line_without_it(monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, 'rclpy', None)            # import rclpy fails
+    monkeypatch.delitem(sys.modules, 'grass_nrsfm_ros.commands.replay', raising=False)
+    with pytest.raises(SystemExit) as exit_:
+        main(['replay', 'some.bag'])
+    assert exit_.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith('grass-nrsfm replay: error: needs ROS 2')
+    assert main(['evaluate', 'missing.npz', 'missing.npz']) == 2        # needs no ROS

@@ -7,9 +7,13 @@ frame (published, lost or pending)."""
 import numpy as np
 import pytest
 
+from doubles import NaNSolver, RigidALS, RigidWarmStart
+from grass_nrsfm_ros import cloud
+from grass_nrsfm_ros.nrsfm import GrassmannNRSfM, rotation
 from grass_nrsfm_ros.nrsfm.measurement import as_frames, from_frames, to_camera
 from grass_nrsfm_ros.nrsfm.synthetic import camera_rotations, make_sequence
-from grass_nrsfm_ros.pipeline import FrameError, SlidingWindow, WindowError
+from grass_nrsfm_ros.pipeline import (default_solver_factory, FrameError, SlidingWindow,
+                                      WindowError)
 
 F, P = 30, 150
 
@@ -48,14 +52,9 @@ SCENES = ('rigid', 'planar', 'collinear', 'static_camera', 'static_rigid', 'dupl
 
 
 def solvers():
-    """``{name: fit(W) -> (S, R)}`` for every solver on this checkout."""
-    from grass_nrsfm_ros.nrsfm import rotation
+    """``{name: fit(W) -> (S, R)}`` for every solver."""
     out = {'rigid_factorisation': lambda W: rotation.rigid_factorisation(W)[::-1],
            'estimate_rotations': lambda W: (None, rotation.estimate_rotations(W).R)}
-    try:
-        from grass_nrsfm_ros.nrsfm import GrassmannNRSfM
-    except ImportError:
-        return out
 
     def grassmann(W):
         res = GrassmannNRSfM(max_iter=60).fit(W)
@@ -89,8 +88,6 @@ def test_solvers_return_finite_results_or_a_reason(name):
 # -- the pipeline ------------------------------------------------------------------------------
 def run_pipeline(W, ids=None, factory=None, **kwargs):
     """Feed ``W`` frame by frame; return (results, pipeline, refused frames, failed windows)."""
-    from test_pipeline import RigidALS, RigidWarmStart
-
     kwargs = dict(dict(window_size=10, window_stride=5, min_tracks=4), **kwargs)
     p = SlidingWindow(factory or RigidALS, warm_start_class=RigidWarmStart, **kwargs)
     ids = np.arange(W.shape[1], dtype=np.uint32) if ids is None else ids
@@ -137,16 +134,6 @@ def test_pipeline_publishes_finite_clouds_or_nothing(name):
         assert not results and p.stats['frames_lost'] == 2
 
 
-class NaNSolver:
-    """A broken solver: the rigid result with NaN in one frame's shape."""
-
-    def fit(self, W, init=None):
-        from test_pipeline import RigidALS
-        result = RigidALS().fit(W, init)
-        result.S[3, :5] = np.nan
-        return result
-
-
 def test_pipeline_publishes_nothing_from_a_solver_returning_nan():
     results, p, refused, failed = run_pipeline(scene('rigid'), factory=NaNSolver)
     check_published(results, p, refused, F)
@@ -156,11 +143,6 @@ def test_pipeline_publishes_nothing_from_a_solver_returning_nan():
 
 @pytest.mark.parametrize('name', SCENES)
 def test_pipeline_with_the_grassmann_solver(name):
-    try:
-        from grass_nrsfm_ros.nrsfm import GrassmannNRSfM  # noqa: F401
-    except ImportError:
-        pytest.skip('GrassmannNRSfM is not on this checkout yet')
-    from grass_nrsfm_ros.pipeline import default_solver_factory
     W = scene(name)
     results, p, refused, failed = run_pipeline(W, factory=default_solver_factory(max_iter=60))
     print(name, {'published': len(results), 'refused': len(refused), 'failed': failed[:1]})
@@ -184,10 +166,8 @@ def test_node_publishes_no_garbage_on_degenerate_streams(ros_env, tmp_path):
     """Degenerate scenes back to back (each a new sequence): every published cloud is finite,
     every message is accounted for and the node stays up."""
     pytest.importorskip('rclpy')
-    import rosutil
+    import rosutil                      # imported here: it needs rclpy, the rest of this file not
     from std_msgs.msg import Header
-
-    from grass_nrsfm_ros import cloud
 
     names = ('rigid', 'planar', 'static_rigid', 'duplicated_frames', 'one_pixel')
     messages, f = [], 0
@@ -202,8 +182,7 @@ def test_node_publishes_no_garbage_on_degenerate_streams(ros_env, tmp_path):
     args = ['-p', 'window_size:=10', '-p', 'window_stride:=5', '-p', 'min_tracks:=4']
     log = tmp_path / 'node.log'
     with rosutil.node_with_feeder(ros_env, log, args) as (proc, feeder):
-        from test_faults import publish
-        publish(feeder, messages)
+        rosutil.publish(feeder, messages)
         counts = feeder.accounted(len(messages))
         assert counts is not None, log.read_text()
         assert proc.poll() is None

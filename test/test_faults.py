@@ -1,6 +1,10 @@
 """Faults: the node killed or stopped mid-work, a recording target that fails, peers that come
 and go, and bags from outside that are broken. The node runs in its own process (test/rosutil),
-with the rigid test solver of test_pipeline unless a test needs a slow one."""
+with the rigid test solver of test/doubles.py unless a test needs a slow one.
+
+Figures (exit times, counts) are recorded as the test-suite property ``reliability_faults``
+(JSON); ``python -m bench.reliability`` collects them into bench/results/reliability_faults.json.
+The tests write no file."""
 import json
 import os
 from pathlib import Path
@@ -9,59 +13,32 @@ import signal
 import subprocess
 import sys
 import time
-from types import SimpleNamespace
 
+from mcap.exceptions import McapError
+from mcap.records import Message
+from mcap.stream_reader import StreamReader
 import numpy as np
 import pytest
 
-from grass_nrsfm_ros import bag
+from doubles import bending_sheet
+from grass_nrsfm_ros import bag, cloud
 from grass_nrsfm_ros.nrsfm.measurement import as_frames
 
 REPO = Path(__file__).resolve().parents[1]
-RESULTS = REPO / 'bench' / 'results' / 'reliability_faults.json'
 FIGURES = {}
 T0 = 1_700_000_000_000_000_000
 PERIOD_NS = 33_333_333
-SLOW_LAUNCH = ('import sys; from test_faults import SlowSolver; '
-               'from test_pipeline import RigidWarmStart; '
+SLOW_LAUNCH = ('import sys; from doubles import RigidWarmStart, SlowSolver; '
                'from grass_nrsfm_ros.node import main; '
                'sys.exit(main(solver_factory=SlowSolver, warm_start_class=RigidWarmStart))')
 STUBBORN_LAUNCH = SLOW_LAUNCH.replace('SlowSolver', 'StubbornSolver')
 
 
-class SlowSolver:
-    """The rigid test solver after ``SECONDS`` of 'iterations' (0.05 s each), each reported to
-    ``progress(iteration, report)`` as GrassmannNRSfM does (so a node can cancel it)."""
-
-    SECONDS = 30.0
-
-    def fit(self, W, init=None, progress=None):
-        from test_pipeline import RigidALS
-
-        report = SimpleNamespace(iterations=0)
-        for it in range(int(self.SECONDS / 0.05)):
-            time.sleep(0.05)
-            report.iterations = it + 1
-            if progress is not None:
-                progress(it + 1, report)
-        return RigidALS().fit(W, init)
-
-
-class StubbornSolver(SlowSolver):
-    """A slow solver without a progress callback: it cannot be cancelled."""
-
-    def fit(self, W, init=None):
-        return super().fit(W, init, None)
-
-
 def frames(F, P=60, seed=0, id_offset=0, first=0):
     """``F`` tracks clouds (rclpy) of a rigid-ish synthetic scene, stamps 30 Hz from ``first``."""
-    from std_msgs.msg import Header
-    from test_pipeline import make_sequence
+    from std_msgs.msg import Header          # here: ROS 2 messages; the bag tests need none
 
-    from grass_nrsfm_ros import cloud
-
-    W, _, ids = make_sequence(F=F, P=P, seed=seed)
+    W, _, ids = bending_sheet(F=F, P=P, seed=seed)
     out = []
     for f in range(F):
         ns = T0 + (first + f) * PERIOD_NS
@@ -78,11 +55,25 @@ def frames(F, P=60, seed=0, id_offset=0, first=0):
 CHURN_PERIOD = 0.1
 
 
-def publish(feeder, messages, period=1 / 30):
-    start = time.monotonic()
-    for i, msg in enumerate(messages):
-        time.sleep(max(0.0, start + i * period - time.monotonic()))
-        feeder.pub.publish(msg)
+def idle_after(values, received):
+    """Whether diagnostics ``values`` count ``received`` messages and no solve running or
+    waiting."""
+    return (int(values.get('messages received', 0)) >= received
+            and values.get('solver busy') == 'False')
+
+
+def messages_on_disk(bag_dir):
+    """Complete messages in a recording being written, read as ``recover`` reads: each .mcap
+    up to its first incomplete record."""
+    count = 0
+    for path in bag.mcap_files(bag_dir):
+        with open(path, 'rb') as fh:
+            try:
+                for record in StreamReader(fh).records:
+                    count += isinstance(record, Message)
+            except (McapError, ValueError, KeyError):
+                pass                                 # the chunk being written
+    return count
 
 
 def figure(name, **values):
@@ -91,12 +82,12 @@ def figure(name, **values):
 
 
 @pytest.fixture(scope='module', autouse=True)
-def write_figures():
+def fault_figures(record_testsuite_property):
+    """After the module: the figures as the suite property ``reliability_faults`` (kept only
+    with ``--junitxml``, as bench/reliability.py runs it)."""
     yield
     if FIGURES:
-        RESULTS.parent.mkdir(parents=True, exist_ok=True)
-        old = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
-        RESULTS.write_text(json.dumps({**old, **FIGURES}, indent=1, sort_keys=True) + '\n')
+        record_testsuite_property('reliability_faults', json.dumps(FIGURES, sort_keys=True))
 
 
 def ros():
@@ -117,8 +108,9 @@ def test_sigterm_during_a_solve_exits_within_2s_and_finalises_the_recording(
     args = ['-p', 'window_size:=5', '-p', 'window_stride:=5', '-p', 'min_tracks:=10',
             '-p', f'record_path:={tmp_path}/rec']
     with rosutil.node_with_feeder(ros_env, log, args, launch=launch) as (proc, feeder):
-        publish(feeder, frames(7))
-        time.sleep(1.0)                     # the first window (5 frames) is being solved
+        rosutil.publish(feeder, frames(7))
+        assert feeder.wait_for(lambda: feeder.diagnostic_values().get('solver busy') == 'True',
+                               20), log.read_text()      # the first window (5 frames)
         assert proc.poll() is None
         start = time.monotonic()
         proc.send_signal(signal.SIGTERM)
@@ -143,12 +135,14 @@ def test_kill_9_during_recording_leaves_a_recoverable_bag(ros_env, tmp_path):
     args = ['-p', f'record_path:={tmp_path}/rec']
     with rosutil.node_with_feeder(ros_env, log, args) as (proc, feeder):
         messages = frames(90)
-        publish(feeder, messages)
+        rosutil.publish(feeder, messages)
         counts = feeder.accounted(len(messages))
         assert counts is not None, log.read_text()
-        time.sleep(1.5)                    # past the recorder's flush period (1 s)
-        published = len(feeder.points)
-        assert published == counts['frames published'] > 0
+        published = counts['frames published']
+        assert published > 0 and feeder.wait_for(lambda: len(feeder.points) == published, 10)
+        # the recorder flushes within its period (1 s) but says so to no one: poll the file
+        assert feeder.wait_for(lambda: messages_on_disk(tmp_path / 'rec') == 90 + published,
+                               10), messages_on_disk(tmp_path / 'rec')
         proc.send_signal(signal.SIGKILL)
         proc.wait(10)
     assert not (tmp_path / 'rec' / 'metadata.yaml').exists()
@@ -185,7 +179,7 @@ def test_full_recording_target_gives_one_error_and_reconstruction_goes_on(ros_en
     with rosutil.node_with_feeder(ros_env, log, args,
                                   preexec_fn=_limit_file_size) as (proc, feeder):
         messages = frames(150, P=200)     # ~2.4 kB per tracks cloud, 3.2 kB per points cloud
-        publish(feeder, messages)
+        rosutil.publish(feeder, messages)
         counts = feeder.accounted(len(messages))
         assert counts is not None, log.read_text()
         status = feeder.diagnostics[-1].status[0]
@@ -209,7 +203,7 @@ def test_full_recording_target_gives_one_error_and_reconstruction_goes_on(ros_en
 @pytest.mark.ros
 def test_subscriber_that_disappears_causes_no_error_and_publishing_goes_on(ros_env, tmp_path):
     rosutil = ros()
-    from sensor_msgs.msg import PointCloud2
+    from sensor_msgs.msg import PointCloud2      # here: ROS 2; the bag tests need none
 
     log = tmp_path / 'node.log'
     args = ['-p', 'window_size:=10', '-p', 'window_stride:=5']
@@ -217,18 +211,19 @@ def test_subscriber_that_disappears_causes_no_error_and_publishing_goes_on(ros_e
         other = []
         sub = feeder.node.create_subscription(PointCloud2, 'points', other.append, 100)
         messages = frames(120)
-        publish(feeder, messages[:40], CHURN_PERIOD)
+        rosutil.publish(feeder, messages[:40], CHURN_PERIOD)
         assert feeder.wait_for(lambda: len(other) >= 30, 20)
         feeder.node.destroy_subscription(feeder.points_sub)      # both subscribers leave
         feeder.node.destroy_subscription(sub)
         seen = len(other)
-        publish(feeder, messages[40:80], CHURN_PERIOD)
-        time.sleep(1.0)
+        rosutil.publish(feeder, messages[40:80], CHURN_PERIOD)
+        assert feeder.wait_for(lambda: idle_after(feeder.diagnostic_values(), 80), 20), \
+            log.read_text()                       # those 40 frames solved with no one listening
         sub = feeder.node.create_subscription(PointCloud2, 'points', other.append, 100)
-        assert feeder.wait_for(lambda: feeder.node.count_subscribers(
-            feeder.node.get_namespace() + '/points') >= 1, 10)
-        time.sleep(0.5)
-        publish(feeder, messages[80:], CHURN_PERIOD)
+        created = time.monotonic()
+        assert feeder.wait_for(lambda: int(feeder.node_reports(created).get(
+            'points subscribers', 0)) >= 1, 10)   # the node's writer matched the new reader
+        rosutil.publish(feeder, messages[80:], CHURN_PERIOD)
         assert feeder.wait_for(lambda: int(feeder.diagnostic_values().get(
             'frames published', 0)) >= 115, 20), log.read_text()
         assert proc.poll() is None
@@ -254,15 +249,14 @@ def test_publisher_restarting_with_new_ids_starts_a_new_sequence(ros_env, tmp_pa
     log = tmp_path / 'node.log'
     args = ['-p', 'window_size:=10', '-p', 'window_stride:=5']
     with rosutil.node_with_feeder(ros_env, log, args) as (proc, feeder):
-        publish(feeder, frames(40), CHURN_PERIOD)
+        rosutil.publish(feeder, frames(40), CHURN_PERIOD)
         assert feeder.wait_for(lambda: len(feeder.points) >= 40, 20), log.read_text()
         feeder.new_publisher()
         first = 60 if stamps == 'later' else -1000
-        publish(feeder, frames(40, seed=1, id_offset=1_000_000, first=first), CHURN_PERIOD)
+        rosutil.publish(feeder, frames(40, seed=1, id_offset=1_000_000, first=first), CHURN_PERIOD)
         assert feeder.wait_for(lambda: len(feeder.points) >= 80, 20), log.read_text()
         assert feeder.wait_for(
             lambda: feeder.diagnostic_values().get('sequences') == '2', 5), log.read_text()
-    from grass_nrsfm_ros import cloud
     new = [m for m in feeder.points if cloud.decode_points(m)[0].min() >= 1_000_000]
     figure(f'publisher_restart_{stamps}', published_new_sequence=len(new))
     assert len(new) == 40
@@ -329,8 +323,7 @@ def _short_load(tmp_path, record):
     """bench/load.py shortened for CI: the rigid stand-in solver (no context frames), a
     publisher with depth 100 as in the tests above."""
     pytest.importorskip('rclpy')
-    sys.path.insert(0, str(REPO))
-    from bench import load
+    from bench import load                   # here: it needs rclpy (rosutil)
     return load.run(seconds=LOAD_SECONDS, points=LOAD_POINTS, rate=LOAD_RATE, solver='rigid',
                     record=record, tmp=tmp_path, depth=100, log=lambda *a: None)
 

@@ -11,8 +11,14 @@ its peak allocation (tracemalloc) is bounded by a multiple of the bytes actually
 
 Both real ``sensor_msgs/PointCloud2`` messages (field types enforced by rclpy) and duck-typed
 ones (``SimpleNamespace``: any integer, negative or beyond 64 bits) are tried.
+
+What was tried and rejected is recorded as the test-suite property ``reliability_fuzz`` (JSON);
+``python -m bench.reliability`` collects it into bench/results/reliability.json. The tests
+write no file.
 """
 from collections import Counter
+import json
+import os
 import tracemalloc
 from types import SimpleNamespace
 
@@ -20,6 +26,7 @@ from hypothesis import given, HealthCheck, settings, strategies as st
 import numpy as np
 import pytest
 
+from doubles import RigidALS, RigidWarmStart
 from grass_nrsfm_ros import cloud
 
 EXAMPLES = 300
@@ -29,7 +36,6 @@ MEMORY_FACTOR = 40          # peak bytes allocated per byte of data given (measu
 MEMORY_SLACK = 256 * 1024   # fixed overhead (dtype objects, exception text, small arrays)
 REASON_WORDS = ('field', 'data', 'row_step', 'point_step', 'size', 'duplicate', 'datatype',
                 'offset', 'count', 'height', 'width', 'bytes')
-FIGURES = Counter()         # messages tried / rejected per test (printed, see test_zz_figures)
 
 NAMES = ('track_id', 'u', 'v', 'x', 'score', 'U', 'track_id ', '')
 MUTATIONS = ('drop_field', 'rename_field', 'duplicate_field', 'datatype', 'count', 'offset',
@@ -225,6 +231,18 @@ def test_decoder_on_hostile_duck_typed_messages(msg):
 FIGURES_REAL, FIGURES_DUCK, FIGURES_NODE = Counter(), Counter(), Counter()
 
 
+@pytest.fixture(scope='module', autouse=True)
+def fuzz_figures(record_testsuite_property):
+    """After the module: what the fuzz tests tried, as the suite property ``reliability_fuzz``
+    (kept only with ``--junitxml``, as bench/reliability.py runs it)."""
+    yield
+    summary = {name: dict(figures) for name, figures in (
+        ('decode_real_messages', FIGURES_REAL), ('decode_duck_typed', FIGURES_DUCK),
+        ('node_callback', FIGURES_NODE)) if figures}
+    summary['memory_bound'] = f'peak <= {MEMORY_FACTOR} x data + {MEMORY_SLACK // 1024} KiB'
+    record_testsuite_property('reliability_fuzz', json.dumps(summary, sort_keys=True))
+
+
 def duck(data=b'', fields=None, **header):
     fields = fields or [dict(name='track_id', offset=0), dict(name='u', offset=4),
                         dict(name='v', offset=8)]
@@ -291,11 +309,8 @@ def node_in_process():
     """A ReconstructionNode in this process (discovery off), the rigid test solver injected;
     windows of 1000 frames so no solve starts (the callback path only)."""
     rclpy = pytest.importorskip('rclpy')
-    import os
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'OFF'
-    from test_pipeline import RigidALS, RigidWarmStart
-
-    from grass_nrsfm_ros.node import ReconstructionNode
+    from grass_nrsfm_ros.node import ReconstructionNode    # here: it needs rclpy
 
     context = rclpy.Context()
     rclpy.init(context=context, args=['--ros-args', '-p', 'window_size:=1000',
@@ -325,21 +340,3 @@ def test_node_callback_accepts_or_counts_every_hostile_message(node_in_process, 
     assert (after[1] - before[1]) + (after[2] - before[2]) == 1
     FIGURES_NODE['tried'] += 1
     FIGURES_NODE['rejected'] += after[1] - before[1]
-
-
-def test_zz_figures(capsys):
-    """Print what the fuzz tests tried (run after them: pytest keeps file order)."""
-    import json
-    from pathlib import Path
-
-    summary = {name: dict(figures) for name, figures in (
-        ('decode_real_messages', FIGURES_REAL), ('decode_duck_typed', FIGURES_DUCK),
-        ('node_callback', FIGURES_NODE)) if figures}
-    with capsys.disabled():
-        print(f'\nfuzz: {summary}')
-    if len(summary) == 3:
-        path = Path(__file__).resolve().parents[1] / 'bench' / 'results' / 'reliability.json'
-        old = json.loads(path.read_text()) if path.exists() else {}
-        old['fuzz'] = dict(summary, memory_bound=f'peak <= {MEMORY_FACTOR} x data + '
-                           f'{MEMORY_SLACK // 1024} KiB')
-        path.write_text(json.dumps(old, indent=1, sort_keys=True) + '\n')

@@ -40,11 +40,6 @@ def test_zeta_is_exact_on_low_rank_groups_and_truncates_otherwise():
     assert np.allclose(half, 0.5 * (full + out))
 
 
-def random_rotations(rng, F):
-    Q, _ = np.linalg.qr(rng.normal(size=(F, 3, 3)))
-    return Q * np.sign(np.linalg.det(Q))[:, None, None]
-
-
 def test_c_update_satisfies_its_optimality_condition():
     rng = np.random.default_rng(2)
     bases = random_bases(rng, 6, 20, 3)

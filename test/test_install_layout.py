@@ -8,7 +8,7 @@ import shutil
 import signal
 import subprocess
 import sys
-import time
+import threading
 
 import pytest
 
@@ -56,7 +56,7 @@ def ros_run_lookup(prefix):
 
 
 def test_colcon_layout_resolves_like_ros2_run(colcon_install, monkeypatch):
-    from ament_index_python.packages import get_package_prefix
+    from ament_index_python.packages import get_package_prefix     # comes with ROS 2
     monkeypatch.setenv('AMENT_PREFIX_PATH', str(colcon_install))
     prefix = Path(get_package_prefix(PACKAGE))
     assert prefix == colcon_install
@@ -77,13 +77,30 @@ def test_installed_node_starts_and_stops_on_sigint(colcon_install, tmp_path):
                              '-p', 'window_size:=20', '-r', '__ns:=/install_test'],
                             cwd=tmp_path, env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
-    time.sleep(4)
-    assert proc.poll() is None, proc.stdout.read()
+    head = read_until(proc, 'window 20, stride 10', timeout=60)     # its start-up line
+    assert proc.poll() is None, head
     proc.send_signal(signal.SIGINT)
     out, _ = proc.communicate(timeout=15)
+    out = head + out
     assert proc.returncode == 0, out
     assert 'window 20, stride 10' in out
     assert 'Traceback' not in out
+
+
+def read_until(proc, text, timeout):
+    """``proc``'s output up to the line holding ``text`` (all of it if the process ends first);
+    the process is killed after ``timeout`` s without that line."""
+    watchdog = threading.Timer(timeout, proc.kill)
+    watchdog.start()
+    lines = []
+    try:
+        for line in proc.stdout:
+            lines.append(line)
+            if text in line:
+                break
+    finally:
+        watchdog.cancel()
+    return ''.join(lines)
 
 
 def test_pip_install_puts_no_node_on_path(tmp_path):

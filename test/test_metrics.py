@@ -1,13 +1,9 @@
 import numpy as np
 import pytest
 
+from doubles import random_rotations
 from grass_nrsfm_ros.nrsfm.measurement import InvalidInputError, validate_tracks
 from grass_nrsfm_ros.nrsfm.metrics import e3d, e3d_akhter, procrustes_align, rotation_error
-
-
-def random_rotations(n, rng):
-    Q, _ = np.linalg.qr(rng.normal(size=(n, 3, 3)))
-    return Q * np.sign(np.linalg.det(Q))[:, None, None]
 
 
 def test_e3d_zero_for_rotated_translated_copy():

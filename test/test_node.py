@@ -2,15 +2,17 @@
 a temporary folder), fed a synthetic sequence at 30 Hz from this process, its ``points``
 checked against ground truth; malformed clouds are interleaved with good ones.
 
-The node runs with the rigid solver of test_pipeline (injected through ``main``), so these tests
+The node runs with the rigid solver of test/doubles.py (injected through ``main``), so these tests
 exercise the node and the pipeline, not the Grassmannian solver.
 """
 import signal
-import time
 
 import numpy as np
 import pytest
+from rosbags.highlevel import AnyReader
+from rosbags.typesys import get_typestore, Stores
 
+from doubles import bending_sheet
 from grass_nrsfm_ros import cloud
 from grass_nrsfm_ros.nrsfm.measurement import as_frames
 from grass_nrsfm_ros.nrsfm.metrics import e3d, e3d_akhter
@@ -19,8 +21,7 @@ rclpy = pytest.importorskip('rclpy')
 from builtin_interfaces.msg import Time  # noqa: E402, I100
 from sensor_msgs.msg import PointCloud2, PointField  # noqa: E402
 from std_msgs.msg import Header  # noqa: E402
-from rosutil import node_with_feeder  # noqa: E402, I100
-from test_pipeline import make_sequence  # noqa: E402
+from rosutil import node_with_feeder, publish  # noqa: E402, I100
 
 pytestmark = pytest.mark.ros
 PERIOD = 1 / 30
@@ -50,11 +51,12 @@ def stamp_of(msg):
     return stamp.sec * 10 ** 9 + stamp.nanosec
 
 
-def publish_at_30hz(feeder, messages):
-    start = time.monotonic()
-    for i, msg in enumerate(messages):
-        time.sleep(max(0.0, start + i * PERIOD - time.monotonic()))
-        feeder.publish(msg)
+def all_published(feeder, sent, log):
+    """Wait until the node has accounted for the ``sent`` messages and every cloud it counts
+    as published has arrived here (a duplicate would then be among them)."""
+    counts = feeder.accounted(sent)
+    assert counts is not None, log.read_text()
+    assert feeder.wait_for(lambda: len(feeder.points) >= counts['frames published'], 10), counts
 
 
 def good_frames(W, ids, first=0):
@@ -76,10 +78,10 @@ def stacked(points, ids):
                          indirect=True)
 def test_node_reconstructs_a_30hz_stream(node_process, tmp_path):
     proc, log, feeder = node_process
-    W, S, ids = make_sequence(F=60, noise=0.5)
-    publish_at_30hz(feeder, good_frames(W, ids))
+    W, S, ids = bending_sheet(F=60, noise=0.5)
+    publish(feeder, good_frames(W, ids))
     assert feeder.wait_for(lambda: len(feeder.points) >= 60, 60), log.read_text()
-    time.sleep(0.3)
+    all_published(feeder, 60, log)
     points = sorted(feeder.points, key=stamp_of)
     assert [stamp_of(m) for m in points] == [stamp_of(header(f)) for f in range(60)]
     assert all(m.header.frame_id == 'cam_optical' for m in points)
@@ -104,8 +106,6 @@ def test_node_reconstructs_a_30hz_stream(node_process, tmp_path):
     proc.send_signal(signal.SIGINT)
     assert proc.wait(15) == 0
     # the recording, read back by rosbags: every input and output message, in order
-    from rosbags.highlevel import AnyReader
-    from rosbags.typesys import get_typestore, Stores
     with AnyReader([tmp_path / 'recording'],
                    default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
@@ -161,7 +161,7 @@ LOG_LINES = {'missing': "missing field 'track_id'", 'datatype': "field 'u' has d
                          indirect=True)
 def test_bad_input_is_logged_once_and_good_frames_still_published(node_process):
     proc, log, feeder = node_process
-    W, S, ids = make_sequence(F=105, noise=0.5)
+    W, S, ids = bending_sheet(F=105, noise=0.5)
     frames = good_frames(W[:90], ids) + good_frames(W[90:], ids + 50_000, first=45)
     # frames 0..44: one tracker session, 45..104: every id changed
     messages = []
@@ -175,11 +175,11 @@ def test_bad_input_is_logged_once_and_good_frames_still_published(node_process):
             messages.append(good)                   # the same frame again
         elif kind:
             messages.append(malformed(good, kind))  # same stamp, broken: dropped first
-    publish_at_30hz(feeder, messages)
+    publish(feeder, messages)
     # on failure: what arrived and the node's counts (lost frames = skipped windows under load)
     assert feeder.wait_for(lambda: len(feeder.points) >= 105, 60), (
         len(feeder.points), feeder.diagnostic_values(), log.read_text())
-    time.sleep(0.3)
+    all_published(feeder, len(messages), log)
     assert sorted(stamp_of(m) for m in feeder.points) == [stamp_of(header(f))
                                                           for f in range(105)]
     assert proc.poll() is None

@@ -1,13 +1,17 @@
 """The node's integration surface over DDS (issue 22): the input QoS against best-effort and
 reliable trackers, ``~/reset``, rates in ``/diagnostics``, the ``mesh`` marker and the offered
-QoS in recordings. The node runs in its own process with the rigid solver of test_pipeline
+QoS in recordings. The node runs in its own process with the rigid solver of test/doubles.py
 (test/rosutil); this process is the tracker."""
 import time
 
+from mcap.reader import make_reader
 import numpy as np
 import pytest
+from rosbags.highlevel import AnyReader
+from rosbags.interfaces import QosReliability
 import yaml
 
+from doubles import bending_sheet
 from grass_nrsfm_ros import cloud
 from grass_nrsfm_ros.nrsfm.measurement import as_frames
 
@@ -16,9 +20,8 @@ from rclpy.qos import qos_profile_sensor_data, QoSProfile, ReliabilityPolicy  # 
 from std_msgs.msg import Header  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 from visualization_msgs.msg import Marker  # noqa: E402
-from rosutil import node_with_feeder, unique_namespace  # noqa: E402, I100
-from test_node import good_frames, publish_at_30hz, stamp_of  # noqa: E402
-from test_pipeline import make_sequence  # noqa: E402
+from rosutil import node_with_feeder, publish, unique_namespace  # noqa: E402, I100
+from test_node import good_frames, stamp_of  # noqa: E402
 
 pytestmark = pytest.mark.ros
 RELIABLE_10 = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -34,7 +37,7 @@ def statuses(feeder):
 
 
 def frames_at_30hz(F, first=0, seed=0):
-    W, _, ids = make_sequence(F=F, noise=0.5, seed=seed)
+    W, _, ids = bending_sheet(F=F, noise=0.5, seed=seed)
     return good_frames(W, ids, first=first), ids
 
 
@@ -51,7 +54,7 @@ def test_trackers_of_either_reliability_are_heard(ros_env, tmp_path, mode, track
                           points_depth=30, tracks_qos=tracker) as (proc, feeder):
         assert feeder.diagnostic_values()['input reliability'] == reliability
         messages, _ = frames_at_30hz(90)
-        publish_at_30hz(feeder, messages)
+        publish(feeder, messages)
         counts = feeder.accounted(int(0.95 * 90), timeout=30)
         assert counts is not None, (feeder.diagnostic_values(),
                                     (tmp_path / 'node.log').read_text())
@@ -83,7 +86,7 @@ def test_reset_drops_buffer_and_model_and_starts_a_new_sequence(ros_env, tmp_pat
                                            'grass_nrsfm/reset')
         assert client.wait_for_service(timeout_sec=10)
         messages, ids = frames_at_30hz(45)
-        publish_at_30hz(feeder, messages)
+        publish(feeder, messages)
         before = feeder.accounted(45)
         # every frame tracked and published; windows of 30, stride 10: frames 0-39 refined,
         # 40-44 buffered
@@ -105,7 +108,7 @@ def test_reset_drops_buffer_and_model_and_starts_a_new_sequence(ros_env, tmp_pat
         assert values['last reset'] == answer.message
         # the same tracker goes on (same ids, later stamps): a new sequence from the next frame
         more, _ = frames_at_30hz(40, first=45, seed=0)
-        publish_at_30hz(feeder, more)
+        publish(feeder, more)
         after = feeder.accounted(85)
         assert after['frames published'] == 85 and after['frames lost'] == 0, after
         assert feeder.wait_for(lambda: len(feeder.points) >= 85, 10)
@@ -122,7 +125,7 @@ def test_rates_and_stamp_delay_in_diagnostics(ros_env, tmp_path):
         namespace = feeder.node.get_namespace()
         level, message, _ = statuses(feeder)[f'{namespace}/tracks input frequency']
         assert (level, message) == (1, 'No events recorded.')
-        W, _, ids = make_sequence(F=180, noise=0.5)
+        W, _, ids = bending_sheet(F=180, noise=0.5)
         clock = rclpy.clock.Clock()
         messages = [cloud.encode_tracks(ids, uv.T, Header(frame_id='camera'))
                     for uv in as_frames(W, 2)]
@@ -157,12 +160,10 @@ def test_mesh_marker_and_offered_qos_in_the_recording(ros_env, tmp_path):
                           tracks_qos=qos_profile_sensor_data) as (proc, feeder):
         namespace = feeder.node.get_namespace()
         markers = []
-        feeder.node.create_subscription(Marker, 'mesh', markers.append, 10)
-        assert feeder.wait_for(lambda: feeder.node.count_publishers(
-            f'{feeder.node.get_namespace()}/mesh') == 1, 10)
-        time.sleep(0.5)                        # the marker reader matched by the node
+        mesh_sub = feeder.node.create_subscription(Marker, 'mesh', markers.append, 10)
+        assert feeder.wait_for(lambda: mesh_sub.get_publisher_count() == 1, 10)
         messages, ids = frames_at_30hz(60)
-        publish_at_30hz(feeder, messages)
+        publish(feeder, messages)
         assert feeder.wait_for(lambda: len(markers) >= 1 and len(feeder.points) >= 50, 30), \
             log.read_text()
     marker = markers[-1]
@@ -189,9 +190,6 @@ def test_mesh_marker_and_offered_qos_in_the_recording(ros_env, tmp_path):
                                 'lifespan', 'liveliness', 'liveliness_lease_duration',
                                 'avoid_ros_namespace_conventions'}
         assert set(profile['deadline']) == {'sec', 'nsec'}
-    from mcap.reader import make_reader
-    from rosbags.highlevel import AnyReader
-    from rosbags.interfaces import QosReliability
     with open(next((tmp_path / 'rec').glob('*.mcap')), 'rb') as f:
         channels = make_reader(f).get_summary().channels.values()
         in_mcap = {c.topic: yaml.safe_load(c.metadata['offered_qos_profiles']) for c in channels}

@@ -4,12 +4,13 @@ longer flattens it."""
 from dataclasses import replace
 
 import numpy as np
-from test_admm import smooth_rotations
 
+from doubles import wobbling_rotations
 from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM, WarmStart
 from grass_nrsfm_ros.nrsfm.admm import AdmmState
 from grass_nrsfm_ros.nrsfm.baselines import rigid
 from grass_nrsfm_ros.nrsfm.config import admm_settings
+from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
 from grass_nrsfm_ros.nrsfm.schema import solver_defaults
 from grass_nrsfm_ros.nrsfm.synthetic import make_sequence
 
@@ -29,7 +30,7 @@ def test_centred_norm_keeps_a_rigid_shapes_depth_under_narrow_views():
     F, P = 30, 300
     u, v = rng.uniform(-1, 1, (2, P))
     shape = np.stack([u, v, 0.6 * np.cos(1.5 * u) * np.cos(1.5 * v)])
-    R = smooth_rotations(F, rng, amplitude=0.15)
+    R = wobbling_rotations(F, rng, amplitude=0.15)
     cam = R @ shape
     W, S = cam[:, :2].reshape(2 * F, P), cam.reshape(3 * F, P)
     plain, centred = (GrassmannNRSfM(nuclear=n, inextensible='never').fit(W, init=WarmStart(R=R))
@@ -42,7 +43,7 @@ def test_centred_norm_keeps_a_rigid_shapes_depth_under_narrow_views():
 def sharp_state(F, P, nuclear, seed=0):
     rng = np.random.default_rng(seed)
     W = rng.normal(size=(2 * F, P))
-    R = smooth_rotations(F, rng)
+    R = wobbling_rotations(F, rng)
     params = dict(solver_defaults(), nuclear=nuclear, spatial=False, temporal=False,
                   K_s=1, K_t=1, N_s=3, N_t=3)
     settings = replace(admm_settings(params, F, P, None, nuclear, spatial=False), gamma=2.0)
@@ -106,7 +107,6 @@ def test_auto_is_plain_with_the_rigid_rotations():
 def test_auto_is_plain_from_given_shapes():
     # the sliding window's first solve starts from the rigid factorisation; centred, it stayed
     # near that start (streamed bending 60 x 400: 0.2458 against 0.1766 plain)
-    from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
     seq = make_sequence('inflating', 30, 200, camera='orbit', seed=0)
     R, S = rigid_factorisation(seq.W)
     auto = GrassmannNRSfM(nuclear='auto').fit(seq.W, init=WarmStart(R=R, S=S))

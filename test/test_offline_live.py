@@ -52,7 +52,7 @@ def test_offline_reconstruction_equals_the_live_node(ros_env, tmp_path):
             header = Header(stamp=Time(sec=int(stamp) // 10 ** 9, nanosec=int(stamp) % 10 ** 9),
                             frame_id='camera')
             feeder.pub.publish(cloud.encode_tracks(ids, uv[f], header))
-            time.sleep(PERIOD_NS / 1e9)
+            time.sleep(PERIOD_NS / 1e9)              # a 10 Hz camera (a rate, not a wait)
         assert feeder.wait_for(lambda: len(feeder.points) >= seq.n_frames, 120), \
             log.read_text()
         live = clouds_by_stamp(feeder.points)

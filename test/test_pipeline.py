@@ -1,134 +1,14 @@
 """SlidingWindow against a real solver: an iterative rigid factorisation (Tomasi-Kanade start,
-then alternating least squares on orthonormal cameras) written here, so the pipeline is tested
-without the Grassmannian solver; the policies of pipeline.py are checked one by one."""
-from dataclasses import dataclass
-import time
-from types import SimpleNamespace
-
+then alternating least squares on orthonormal cameras; doubles.RigidALS), so the pipeline is
+tested without the Grassmannian solver; the policies of pipeline.py are checked one by one."""
 import numpy as np
 import pytest
 
+from doubles import bending_sheet, recording_rigid, RigidALS, RigidWarmStart
 from grass_nrsfm_ros.nrsfm.measurement import as_frames, centre
 from grass_nrsfm_ros.nrsfm.metrics import e3d, e3d_akhter
 from grass_nrsfm_ros.pipeline import (FrameError, reconstruct_sequence, SlidingWindow,
                                       WindowError)
-
-
-# -- synthetic data ---------------------------------------------------------------------------
-def _rotation(yaw, pitch):
-    cy, sy, cp, sp = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch)
-    Ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
-    Rx = np.array([[1, 0, 0], [0, cp, -sp], [0, sp, cp]])
-    return Rx @ Ry
-
-
-def make_sequence(F=60, P=200, *, bend=0.15, noise=0.0, seed=0):
-    """A bending sheet seen by a turning orthographic camera, in pixels.
-
-    Returns ``W: (2F, P)`` (with a drifting translation), ``S: (3F, P)`` camera-frame ground
-    truth, ``ids: (P,)`` track ids. ``bend`` scales the non-rigid part.
-    """
-    rng = np.random.default_rng(seed)
-    xy = rng.uniform(-1, 1, (2, P))
-    base = np.vstack([xy, 0.4 * np.cos(2 * xy[0]) * np.cos(1.5 * xy[1])])
-    t = np.linspace(0, 1, F)
-    S_world = np.stack([base + bend * np.sin(2 * np.pi * tt) * np.vstack(
-        [0 * xy[0], 0 * xy[0], xy[0] ** 2 - 0.3]) for tt in t])            # (F, 3, P)
-    R = np.stack([_rotation(0.8 * np.sin(2 * np.pi * tt), 0.4 * np.cos(3 * tt)) for tt in t])
-    S = (R @ S_world) * 100.0                                             # pixels
-    W = S[:, :2, :] + np.stack([200 + 20 * t, 150 - 10 * t], axis=1)[:, :, None]
-    W = W + noise * rng.standard_normal(W.shape)
-    ids = rng.permutation(10 * P)[:P].astype(np.uint32) + 5
-    return W.reshape(2 * F, P), S.reshape(3 * F, P), ids
-
-
-# -- a real rigid solver ----------------------------------------------------------------------
-@dataclass
-class RigidWarmStart:
-    R: np.ndarray = None
-    S: np.ndarray = None
-    known: np.ndarray = None
-    groups: np.ndarray = None
-    rotation_method: str = None
-
-
-def _camera_rows(A):
-    """Nearest 2x3 matrices with orthonormal rows to ``A: (F, 2, 3)``."""
-    U, _, Vt = np.linalg.svd(A, full_matrices=False)
-    return U @ Vt
-
-
-def _full_rotation(M):
-    """``M: (F, 2, 3)`` orthonormal rows -> ``(F, 3, 3)`` rotations (third row = cross)."""
-    return np.concatenate([M, np.cross(M[:, 0], M[:, 1])[:, None, :]], axis=1)
-
-
-def tomasi_kanade(Wc):
-    """Rigid factorisation of centred ``Wc: (2F, P)``: cameras ``(F, 2, 3)``, shape ``(3, P)``."""
-    U, s, Vt = np.linalg.svd(Wc, full_matrices=False)
-    M = U[:, :3] * np.sqrt(s[:3])
-    m = M.reshape(-1, 2, 3)
-
-    def row(a, b):            # coefficients of a^T Q b for symmetric Q (6 unknowns)
-        return np.stack([a[:, 0] * b[:, 0], a[:, 0] * b[:, 1] + a[:, 1] * b[:, 0],
-                         a[:, 0] * b[:, 2] + a[:, 2] * b[:, 0], a[:, 1] * b[:, 1],
-                         a[:, 1] * b[:, 2] + a[:, 2] * b[:, 1], a[:, 2] * b[:, 2]], axis=1)
-    A = np.vstack([row(m[:, 0], m[:, 0]) - row(m[:, 1], m[:, 1]), row(m[:, 0], m[:, 1]),
-                   row(m[:, 0], m[:, 0])])
-    b = np.concatenate([np.zeros(2 * len(m)), np.ones(len(m))])
-    q = np.linalg.lstsq(A, b, rcond=None)[0]
-    Q = np.array([[q[0], q[1], q[2]], [q[1], q[3], q[4]], [q[2], q[4], q[5]]])
-    w, V = np.linalg.eigh(Q)
-    G = V * np.sqrt(np.clip(w, 1e-12, None))
-    cams = _camera_rows(m @ G)
-    return cams, np.linalg.pinv(cams.reshape(-1, 3)) @ Wc
-
-
-class RigidALS:
-    """Iterative rigid factorisation: start from Tomasi-Kanade (or a warm start's rotations),
-    then alternate shape (least squares) and cameras (a majorise-minimise step on the
-    orthonormal-rows constraint) until the
-    relative change of the residual is below ``tol``."""
-
-    def __init__(self, tol=1e-7, max_iterations=500):
-        self.tol, self.max_iterations = tol, max_iterations
-
-    def fit(self, W, init=None):
-        start = time.process_time()
-        Wc, t = centre(W)
-        cams, X = tomasi_kanade(Wc)
-        if init is not None and init.R is not None and init.known.any():
-            # rotate the closed-form start into the warm start's world, keep its known cameras
-            known = init.known
-            Q = _camera_rows(np.einsum('fij,fik->jk', cams[known], init.R[known, :2])[None])[0]
-            cams = cams @ Q
-            cams[known] = init.R[known, :2]
-            X = np.linalg.lstsq(cams.reshape(-1, 3), Wc, rcond=None)[0]
-        previous = np.inf
-        for it in range(1, self.max_iterations + 1):
-            # one majorise-minimise step per frame: min ||W_f - M_f X|| over orthonormal rows
-            G = X @ X.T
-            step = 1.0 / np.linalg.eigvalsh(G)[-1]
-            cams = _camera_rows(cams + step * (as_frames(Wc, 2) @ X.T - cams @ G))
-            X = np.linalg.lstsq(cams.reshape(-1, 3), Wc, rcond=None)[0]
-            residual = np.linalg.norm(Wc - cams.reshape(-1, 3) @ X)
-            if previous - residual <= self.tol * max(residual, 1e-12):
-                break
-            previous = residual
-        R = _full_rotation(cams)
-        S = (R @ X).reshape(-1, X.shape[1])
-        report = SimpleNamespace(iterations=it, residual=residual,
-                                 seconds={'total': time.process_time() - start})
-        return SimpleNamespace(S=S, R=R, translation=t, groups=None, report=report)
-
-
-def recording(seen):
-    """A RigidALS solver factory that appends each fit's ``(W, init)`` to ``seen``."""
-    class Recording(RigidALS):
-        def fit(self, W, init=None):
-            seen.append((W, init))
-            return super().fit(W, init)
-    return Recording
 
 
 def pipeline(**kwargs):
@@ -158,7 +38,7 @@ def stacked(results, ids):
 
 # -- tests --------------------------------------------------------------------------------------
 def test_every_frame_published_once_in_order():
-    W, S, ids = make_sequence(F=65)
+    W, S, ids = bending_sheet(F=65)
     p, stamps, results = stream(W, ids)
     assert [r.stamp_ns for r in results] == list(stamps)
     # windows close at 30, 40, 50, 60 frames; the flush covers 61..65
@@ -168,7 +48,7 @@ def test_every_frame_published_once_in_order():
 
 
 def test_output_xy_are_centred_pixels_times_scale():
-    W, S, ids = make_sequence(F=30)
+    W, S, ids = bending_sheet(F=30)
     _, _, results = stream(W, ids, metres_per_pixel=0.01)
     Wc, _ = centre(W)
     order = np.argsort(ids)
@@ -179,7 +59,7 @@ def test_output_xy_are_centred_pixels_times_scale():
 
 
 def test_streaming_accuracy_approaches_whole_sequence():
-    W, S, ids = make_sequence(F=60, noise=0.5)
+    W, S, ids = bending_sheet(F=60, noise=0.5)
     _, _, results = stream(W, ids)
     streamed = stacked(results, ids)
     e_stream, e_whole = e3d(streamed, S), e3d(RigidALS().fit(W).S, S)
@@ -192,15 +72,15 @@ def test_streaming_accuracy_approaches_whole_sequence():
 
 @pytest.mark.parametrize('warm_start', ['model', 'off', 'full'])
 def test_depth_sign_aligned_across_windows(warm_start):
-    W, S, ids = make_sequence(F=90, noise=0.5, seed=3)
+    W, S, ids = bending_sheet(F=90, noise=0.5, seed=3)
     aligned = stacked(stream(W, ids, warm_start=warm_start)[2], ids)
     assert e3d_akhter(aligned, S) < 0.07
 
 
 def test_warm_start_carries_previous_solution_on_overlap():
-    W, S, ids = make_sequence(F=40, noise=0.5)
+    W, S, ids = bending_sheet(F=40, noise=0.5)
     seen = []
-    p = SlidingWindow(recording(seen), warm_start='full', warm_start_class=RigidWarmStart,
+    p = SlidingWindow(recording_rigid(seen), warm_start='full', warm_start_class=RigidWarmStart,
                       context_frames=0,
                       warm_rotations='solver')
     frames = frames_of(W, ids)
@@ -223,9 +103,9 @@ def test_warm_start_carries_previous_solution_on_overlap():
 
 
 def test_context_frames_are_solved_again_but_not_republished():
-    W, S, ids = make_sequence(F=60, noise=0.5)
+    W, S, ids = bending_sheet(F=60, noise=0.5)
     seen = []
-    p = SlidingWindow(recording(seen), warm_start='full', warm_start_class=RigidWarmStart,
+    p = SlidingWindow(recording_rigid(seen), warm_start='full', warm_start_class=RigidWarmStart,
                       context_frames=15,
                       warm_rotations='fit', key_frames=0)
     frames = frames_of(W, ids)
@@ -249,7 +129,7 @@ def test_context_frames_are_solved_again_but_not_republished():
 
 
 def test_context_frames_dropped_when_they_share_too_few_tracks():
-    W, S, ids = make_sequence(F=40, P=100)
+    W, S, ids = bending_sheet(F=40, P=100)
     p = pipeline(context_frames=30)
     gone = ids[:20]                                       # tracked only until frame 4
     windows = []
@@ -259,7 +139,7 @@ def test_context_frames_dropped_when_they_share_too_few_tracks():
     problem = p._problem(windows[1])                      # context: frames 0..9
     # frames 0..4 lack no window track, so all ten share the window's 80 tracks
     assert problem.n_context == 10 and problem.ids.size == 80
-    W2, S2, ids2 = make_sequence(F=40, P=100)
+    W2, S2, ids2 = bending_sheet(F=40, P=100)
     p = pipeline(context_frames=30)
     windows = []
     for f, (fid, uv) in enumerate(frames_of(W2, ids2)):
@@ -272,7 +152,7 @@ def test_context_frames_dropped_when_they_share_too_few_tracks():
 
 
 def test_every_context_frame_is_used_while_fewer_than_context_frames():
-    W, S, ids = make_sequence(F=60, P=100)
+    W, S, ids = bending_sheet(F=60, P=100)
     p = pipeline(context_frames=30)
     windows = [w for f, (fid, uv) in enumerate(frames_of(W, ids)) for w in p.add_frame(f, fid, uv)]
     # windows 0..29, 10..39, 20..49, 30..59: 0, 10, 20 and 30 earlier frames, all solved again
@@ -282,7 +162,7 @@ def test_every_context_frame_is_used_while_fewer_than_context_frames():
 
 
 def test_key_frames_spread_evenly_over_the_older_past():
-    W, S, ids = make_sequence(F=160, P=60)
+    W, S, ids = bending_sheet(F=160, P=60)
     p = pipeline(context_frames=20, key_frames=4)
     windows = [w for f, (fid, uv) in enumerate(frames_of(W, ids)) for w in p.add_frame(f, fid, uv)]
     contexts = [[c.stamp_ns for c in w.context] for w in windows]
@@ -298,9 +178,9 @@ def test_key_frames_spread_evenly_over_the_older_past():
 
 
 def test_warm_start_fills_new_tracks_from_nearest_old_track():
-    W, S, ids = make_sequence(F=40, P=300, noise=0.0)
+    W, S, ids = bending_sheet(F=40, P=300, noise=0.0)
     seen = []
-    p = SlidingWindow(recording(seen), warm_start='full', warm_start_class=RigidWarmStart,
+    p = SlidingWindow(recording_rigid(seen), warm_start='full', warm_start_class=RigidWarmStart,
                       context_frames=0,
                       warm_rotations='solver')
     late = ids[:30]
@@ -321,7 +201,7 @@ def test_warm_start_fills_new_tracks_from_nearest_old_track():
 
 
 def test_tracks_come_and_go():
-    W, S, ids = make_sequence(F=60, P=120)
+    W, S, ids = bending_sheet(F=60, P=120)
     late = ids[:20]                        # appear from frame 25 on
     gone = ids[20:40]                      # vanish after frame 44
     p = pipeline()
@@ -344,7 +224,7 @@ def test_tracks_come_and_go():
 
 
 def test_out_of_order_duplicate_and_late_frames():
-    W, S, ids = make_sequence(F=40)
+    W, S, ids = bending_sheet(F=40)
     frames = frames_of(W, ids)
     p = pipeline()
     order = list(range(40))
@@ -372,7 +252,7 @@ def test_out_of_order_duplicate_and_late_frames():
      'non-finite'),
 ])
 def test_bad_frames_are_refused_and_state_kept(bad, message):
-    W, S, ids = make_sequence(F=30)
+    W, S, ids = bending_sheet(F=30)
     frames = frames_of(W, ids)
     p = pipeline()
     for f in range(10):
@@ -384,7 +264,7 @@ def test_bad_frames_are_refused_and_state_kept(bad, message):
 
 
 def test_all_ids_change_starts_a_new_sequence():
-    W, S, ids = make_sequence(F=75)
+    W, S, ids = bending_sheet(F=75)
     frames = frames_of(W, ids)
     p = pipeline()
     results = []
@@ -402,7 +282,7 @@ def test_all_ids_change_starts_a_new_sequence():
 
 
 def test_skipping_windows_publishes_covered_frames_and_counts_lost():
-    W, S, ids = make_sequence(F=80)
+    W, S, ids = bending_sheet(F=80)
     p = pipeline()
     windows = [w for f, fr in enumerate(frames_of(W, ids)) for w in p.add_frame(f, *fr)]
     assert [w.n_frames for w in windows] == [30] * 6           # close at 30, 40, ..., 80
@@ -415,7 +295,7 @@ def test_skipping_windows_publishes_covered_frames_and_counts_lost():
 
 
 def test_window_with_too_few_common_tracks_is_not_solved():
-    W, S, ids = make_sequence(F=30, P=60)
+    W, S, ids = bending_sheet(F=30, P=60)
     p = pipeline(min_tracks=10)
     windows = []
     for f, (fid, uv) in enumerate(frames_of(W, ids)):

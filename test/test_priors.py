@@ -2,14 +2,10 @@
 import numpy as np
 import pytest
 
+from doubles import random_rotations
 from grass_nrsfm_ros.nrsfm import GrassmannNRSfM
 from grass_nrsfm_ros.nrsfm.priors import smoothness_weight, TemporalSmoothness, track_roughness
 from grass_nrsfm_ros.nrsfm.synthetic import make_sequence
-
-
-def random_rotations(F, rng):
-    Q, _ = np.linalg.qr(rng.normal(size=(F, 3, 3)))
-    return Q * np.sign(np.linalg.det(Q))[:, None, None]
 
 
 def second_difference(F):

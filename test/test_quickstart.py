@@ -13,6 +13,8 @@ import sys
 
 import numpy as np
 import pytest
+from rosbags.highlevel import AnyReader
+from rosbags.typesys import get_typestore, Stores
 
 from grass_nrsfm_ros.nrsfm import e3d
 
@@ -56,8 +58,6 @@ def printed(pattern, text):
 def clouds(bag_path, topic):
     """``{stamp_ns: (ids: (P,), xyz: (P, 3))}`` of ``topic``, decoded with rosbags and the
     message's own PointFields (none of this package's readers)."""
-    from rosbags.highlevel import AnyReader
-    from rosbags.typesys import get_typestore, Stores
 
     types = {7: '<f4', 8: '<f8', 6: '<u4'}
     out = {}

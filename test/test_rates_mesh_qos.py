@@ -5,6 +5,8 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from rosbags.interfaces import QosDurability, QosHistory, QosReliability
+from rosbags.rosbag2.metadata import parse_qos
 
 from grass_nrsfm_ros import mesh, qos, rates
 
@@ -109,9 +111,6 @@ def _profile(**kw):
 
 
 def test_offered_qos_in_rosbag2_form_read_back_by_rosbags():
-    from rosbags.interfaces import QosDurability, QosHistory, QosReliability
-    from rosbags.rosbag2.metadata import parse_qos
-
     text = qos.offered_qos_yaml([_profile(), _profile(reliability=SimpleNamespace(
         name='RELIABLE'), history=SimpleNamespace(name='KEEP_LAST'), depth=10)])
     (a, b) = qos.offered_qos_list(text)

@@ -8,8 +8,9 @@ import pytest
 mpl_image = pytest.importorskip('matplotlib.image')
 from bench import plot  # noqa: E402, I100
 import grass_nrsfm_ros  # noqa: E402
-from grass_nrsfm_ros import bag, render  # noqa: E402
+from grass_nrsfm_ros import bag, mesh, render  # noqa: E402
 from grass_nrsfm_ros.cli import main  # noqa: E402
+from grass_nrsfm_ros.commands.render import aligned_pair  # noqa: E402
 
 
 def read_png(path):
@@ -99,8 +100,6 @@ def test_render_without_matplotlib_says_how_to_install_it(tmp_path, capsys, monk
 
 
 def test_estimate_is_aligned_to_truth_before_drawing():
-    from grass_nrsfm_ros.commands.render import aligned_pair
-
     rng = np.random.default_rng(4)
     truth = rng.normal(size=(3, 30)) + 5.0
     est = 2.0 * np.diag([-1.0, 1.0, 1.0]) @ truth                # mirrored and scaled
@@ -124,8 +123,6 @@ def test_bench_plots_are_pngs_with_content(tmp_path):
 
 
 def test_mesh_figure_draws_a_marker_triangle_list():
-    from grass_nrsfm_ros import mesh
-
     g = np.stack(np.meshgrid(np.linspace(-1, 1, 8), np.linspace(-1, 1, 8)), -1).reshape(-1, 2)
     xyz = np.c_[g, 0.3 * g[:, 0] ** 2]
     vertices, colours = mesh.triangle_list(xyz, mesh.triangulate(g))

@@ -1,59 +1,89 @@
 """replay: a real rclpy subscriber in this process receives what a replay subprocess publishes,
 with the recorded stamps and the recorded timing scaled by --rate. (Marked ros.)"""
+from contextlib import contextmanager
 from pathlib import Path
+import signal
 import subprocess
 import sys
 import time
 
 import numpy as np
 import pytest
+from rosbags.rosbag1 import Writer as Writer1
+from rosbags.typesys import get_typestore, Stores
 
 from grass_nrsfm_ros import bag
 from grass_nrsfm_ros.cloud import decode_tracks
+
+rclpy = pytest.importorskip('rclpy')
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402, I100
+from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
+from rosgraph_msgs.msg import Clock  # noqa: E402
+from sensor_msgs.msg import PointCloud2  # noqa: E402
 
 pytestmark = pytest.mark.ros
 REPO = Path(__file__).resolve().parents[1]
 TOLERANCE_S = 0.030    # per-message timing error allowed; measured p50 ~1 ms on 2 loaded cores
 
 
-def receive(env, bag_path, n_expected, extra=(), timeout=60.0, clock=False):
-    """Run replay in a subprocess; return ``[(monotonic receive time, msg)]`` and clocks."""
-    import rclpy
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
-    from rosgraph_msgs.msg import Clock
-    from sensor_msgs.msg import PointCloud2
+class Listener:
+    """An rclpy node in this process: ``got`` ``[(monotonic receive time, msg)]`` on
+    ``/tracks``, ``clocks`` on ``/clock`` (with ``clock``)."""
 
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx)
-    node = rclpy.create_node('replay_test_sub', context=ctx)
-    got, clocks = [], []
-    qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-    node.create_subscription(PointCloud2, '/tracks',
-                             lambda m: got.append((time.monotonic(), m)), qos)
-    if clock:
-        node.create_subscription(Clock, '/clock', lambda m: clocks.append(m), 100)
-    from rclpy.executors import SingleThreadedExecutor
-    executor = SingleThreadedExecutor(context=ctx)
-    executor.add_node(node)
+    def __init__(self, clock=False):
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node('replay_test_sub', context=self.context)
+        self.got, self.clocks = [], []
+        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        self.node.create_subscription(PointCloud2, '/tracks',
+                                      lambda m: self.got.append((time.monotonic(), m)), qos)
+        if clock:
+            self.node.create_subscription(Clock, '/clock', self.clocks.append, 100)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+
+    def spin_until(self, condition, timeout):
+        """Handle messages until ``condition()`` holds (checked after each one, and every
+        10 ms without one) or ``timeout`` s pass; return ``condition()``."""
+        deadline = time.monotonic() + timeout
+        while not condition() and time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.01)
+        return condition()
+
+    def close(self):
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.shutdown(context=self.context)
+
+
+@contextmanager
+def replaying(env, bag_path, extra=(), clock=False):
+    """A :class:`Listener` and a replay subprocess that starts once the listener is matched;
+    yields ``(listener, process)``, then kills the replay if it still runs."""
+    listener = Listener(clock)
     proc = subprocess.Popen([sys.executable, '-m', 'grass_nrsfm_ros.cli', 'replay',
                              str(bag_path), '--wait-for-subscribers', '1', *extra],
                             env=env, cwd=REPO, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
     try:
-        deadline = time.monotonic() + timeout
-        # until replay has exited: its last /clock follows its last message (stopping at the
-        # n-th message lost that /clock now and then)
-        while (len(got) < n_expected or proc.poll() is None) and time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.01)
-        out, _ = proc.communicate(timeout=30)
+        yield listener, proc
     finally:
         if proc.poll() is None:
             proc.kill()
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.shutdown(context=ctx)
+        listener.close()
+
+
+def receive(env, bag_path, n_expected, extra=(), timeout=60.0, clock=False):
+    """Run replay in a subprocess; return ``[(monotonic receive time, msg)]`` and clocks."""
+    with replaying(env, bag_path, extra, clock) as (listener, proc):
+        # until replay has exited: its last /clock follows its last message (stopping at the
+        # n-th message lost that /clock now and then)
+        listener.spin_until(lambda: len(listener.got) >= n_expected and proc.poll() is not None,
+                            timeout)
+        out, _ = proc.communicate(timeout=30)
     assert proc.returncode == 0, out
-    return got, clocks, out
+    return listener.got, listener.clocks, out
 
 
 def make_bag(path, F=15, period_ns=100_000_000, t0=1_700_000_000_000_000_000, P=25):
@@ -83,9 +113,6 @@ def test_replay_delivers_every_frame_with_scaled_timing(tmp_path, ros_env, rate)
 
 
 def test_replay_of_a_ros1_bag_with_clock(tmp_path, ros_env):
-    from rosbags.rosbag1 import Writer as Writer1
-    from rosbags.typesys import get_typestore, Stores
-
     ts2, ts1 = bag.typestore(), get_typestore(Stores.ROS1_NOETIC)
     W, stamps = make_bag(tmp_path / 'b', F=8)
     ros2 = list(bag.read_clouds(tmp_path / 'b', '/tracks'))
@@ -132,17 +159,13 @@ def test_replay_of_a_missing_topic_fails_clearly(tmp_path, ros_env):
 def test_ctrl_c_stops_a_looping_replay_cleanly(tmp_path, ros_env, sig):
     """At --rate 1000 the signal lands while a message is being published (rclpy's own
     handlers used to invalidate the context under it: a traceback and exit code 1)."""
-    import signal
-
     make_bag(tmp_path / 'b', F=3)
-    proc = subprocess.Popen([sys.executable, '-m', 'grass_nrsfm_ros.cli', 'replay',
-                             str(tmp_path / 'b'), '--loop', '--rate', '1000'], env=ros_env,
-                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True)
-    time.sleep(3.0)
-    assert proc.poll() is None                       # still looping
-    proc.send_signal(getattr(signal, sig))
-    out, _ = proc.communicate(timeout=20)
+    with replaying(ros_env, tmp_path / 'b', ['--loop', '--rate', '1000']) as (listener, proc):
+        # the 3-frame bag played over 10 times: it loops
+        assert listener.spin_until(lambda: len(listener.got) > 30, 30), len(listener.got)
+        assert proc.poll() is None                   # still looping
+        proc.send_signal(getattr(signal, sig))
+        out, _ = proc.communicate(timeout=20)
     assert proc.returncode == 0, out
     assert 'replay: interrupted' in out and 'Traceback' not in out
     published = int(out.split('published ')[1].split()[0])

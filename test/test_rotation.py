@@ -146,15 +146,27 @@ def test_deterministic():
     assert np.array_equal(a.R, b.R)
 
 
-def test_deterministic_across_blas_threads():
+#: rotations from 1 and 2 BLAS threads may differ by reassociation (another summation order in
+#: the kernels), amplified by the iterative metric upgrade: 5.1e-6 degrees with OpenBLAS's
+#: Haswell kernel, below 1e-6 with SkylakeX; the metric itself (an arccos near 1) resolves no
+#: finer than ~1e-6 degrees. The bound is 20 times the worst seen and 5,000 times finer than the
+#: accuracy the tests above ask against ground truth (0.5 degrees).
+THREADS_DEGREES = 1e-4
+
+
+def test_same_rotations_across_blas_threads():
     threadpoolctl = pytest.importorskip('threadpoolctl')
-    W, _, _ = synthetic(K=3, noise=0.02, seed=8)
+    W, _, R_true = synthetic(K=3, noise=0.02, seed=8)
     with threadpoolctl.threadpool_limits(1):
         a = estimate_rotations(W, candidates=range(1, 4))
     with threadpoolctl.threadpool_limits(2):
         b = estimate_rotations(W, candidates=range(1, 4))
-    assert a.K == b.K
-    assert rotation_error(a.R, b.R) < 1e-6
+    assert a.K == b.K and a.scores['rule'] == b.scores['rule']
+    difference = rotation_error(a.R, b.R)
+    print(f'rotations from 1 and 2 BLAS threads differ by {difference:.2g} degrees')
+    assert difference < THREADS_DEGREES
+    assert rotation_error(a.R, R_true) == pytest.approx(rotation_error(b.R, R_true),
+                                                        abs=THREADS_DEGREES)
 
 
 def static_camera_tracks(F=20, P=30, seed=0):

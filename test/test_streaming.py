@@ -8,39 +8,13 @@ with a margin.
 import numpy as np
 import pytest
 
+from doubles import RecordingGrassmann, RigidPerWindow
 from grass_nrsfm_ros.nrsfm import GrassmannNRSfM
+from grass_nrsfm_ros.nrsfm.faces import make_face_sequence
 from grass_nrsfm_ros.nrsfm.measurement import as_frames
 from grass_nrsfm_ros.nrsfm.metrics import e3d
-from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
 from grass_nrsfm_ros.nrsfm.synthetic import make_sequence
 from grass_nrsfm_ros.pipeline import reconstruct_sequence, SlidingWindow
-
-
-class Rigid:
-    """Rigid factorisation per window (ignores any warm start)."""
-
-    def fit(self, W, init=None):
-        R, S = rigid_factorisation(W)
-        return type('Result', (), {'S': S, 'R': R, 'groups': None, 'report': None})()
-
-
-class Recording:
-    """A GrassmannNRSfM factory that keeps each fit's init, result and report."""
-
-    def __init__(self):
-        self.reports, self.inits, self.results = [], [], []
-
-    def __call__(self):
-        reports, inits, results = self.reports, self.inits, self.results
-
-        class Fit(GrassmannNRSfM):
-            def fit(self, W, init=None):
-                result = super().fit(W, init=init)
-                reports.append(result.report)
-                inits.append(init)
-                results.append(result)
-                return result
-        return Fit()
 
 
 def streamed(W, factory, **options):
@@ -59,11 +33,10 @@ def errors(W, S):
     (the windows) skip."""
     whole = GrassmannNRSfM(register_rotations='never').fit(W)
     return (e3d(streamed(W, GrassmannNRSfM), S), e3d(whole.S, S),
-            e3d(streamed(W, Rigid, warm_start='off', context_frames=0), S))
+            e3d(streamed(W, RigidPerWindow, warm_start='off', context_frames=0), S))
 
 
 def test_streaming_dense_face_beats_rigid_windows():
-    from grass_nrsfm_ros.nrsfm.faces import make_face_sequence
     try:
         seq = make_face_sequence(n_frames=60, n_points=1000, seed=0)
     except FileNotFoundError as exc:
@@ -93,7 +66,7 @@ def test_streaming_synthetic_close_to_whole_sequence():
 
 def test_warm_start_needs_fewer_iterations_than_cold_on_the_same_window():
     seq = make_sequence('bending', n_frames=40, n_points=400)
-    factory = Recording()
+    factory = RecordingGrassmann()
     pipe = SlidingWindow(factory, window_size=30, window_stride=10, context_frames=0,
                          warm_start='full', warm_rotations='solver')
     ids = np.arange(400)
@@ -110,7 +83,7 @@ def test_warm_start_needs_fewer_iterations_than_cold_on_the_same_window():
 
 def test_model_warm_start_carries_groups_and_rotation_method_at_equal_accuracy():
     seq = make_sequence('bending', n_frames=90, n_points=400)
-    factory = Recording()
+    factory = RecordingGrassmann()
     options = dict(context_frames=20, key_frames=0)
     model = e3d(streamed(seq.W, factory, **options), seq.S)     # the default warm_start='model'
     off = e3d(streamed(seq.W, GrassmannNRSfM, warm_start='off', **options), seq.S)

@@ -9,6 +9,7 @@ find it beside a reconstruction.
 """
 import numpy as np
 
+from grass_nrsfm_ros import bag
 from grass_nrsfm_ros.cli import UserError
 from grass_nrsfm_ros.commands.npz import load_tracks
 
@@ -28,8 +29,6 @@ def add_arguments(parser):
 
 
 def run(args):
-    from grass_nrsfm_ros import bag
-
     if args.rate <= 0:
         raise UserError(f'--rate must be positive; got {args.rate}')
     W, S, visible = load_tracks(args.input)

@@ -12,6 +12,15 @@ import time
 
 import numpy as np
 
+from grass_nrsfm_ros import bag
+from grass_nrsfm_ros.commands.reconstruct import reconstruct_bag
+from grass_nrsfm_ros.commands.render import renderer
+from grass_nrsfm_ros.live import make_pipeline
+from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM, synthetic
+from grass_nrsfm_ros.nrsfm.metrics import procrustes_align
+from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
+from grass_nrsfm_ros.params import defaults
+
 
 def add_arguments(parser):
     parser.add_argument('-o', '--output', default='out/demo', help='output folder')
@@ -20,8 +29,6 @@ def add_arguments(parser):
 
 
 def make_sequence(frames, points):
-    from grass_nrsfm_ros.nrsfm import synthetic
-
     seq = synthetic.default_sequence()
     if frames is None and points is None:
         return seq
@@ -32,9 +39,6 @@ def make_sequence(frames, points):
 
 def whole_sequence(seq):
     """e3D of the whole-sequence solve and of rigid factorisation; the solver result."""
-    from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM
-    from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
-
     started = time.perf_counter()
     result = GrassmannNRSfM().fit(seq.W)
     seconds = time.perf_counter() - started
@@ -46,13 +50,8 @@ def whole_sequence(seq):
 
 def streaming(seq, tracks_bag, points_bag):
     """Run the node's pipeline over ``tracks_bag`` offline; print the streaming e3D."""
-    from grass_nrsfm_ros import bag
-    from grass_nrsfm_ros.nrsfm import e3d
-    from grass_nrsfm_ros.params import defaults
-    from grass_nrsfm_ros.live import make_pipeline
-
     pipeline = make_pipeline(defaults())
-    report = bag.reconstruct_bag(tracks_bag, points_bag, pipeline, progress=None)
+    report = reconstruct_bag(tracks_bag, points_bag, pipeline, progress=None)
     S, ids, _ = bag.read_S(points_bag)
     S_gt = seq.S[:, ids.astype(int)]
     done = np.isfinite(S).all(axis=1).reshape(-1, 3).all(axis=1)       # (F,) frames published
@@ -63,9 +62,6 @@ def streaming(seq, tracks_bag, points_bag):
 
 
 def picture(result, seq, path):
-    from grass_nrsfm_ros.commands.render import renderer
-    from grass_nrsfm_ros.nrsfm.metrics import procrustes_align
-
     render = renderer()
     last = slice(3 * (seq.n_frames - 1), 3 * seq.n_frames)
     estimate, truth = procrustes_align(result.S[last], seq.S[last])
@@ -74,8 +70,6 @@ def picture(result, seq, path):
 
 
 def run(args):
-    from grass_nrsfm_ros import bag
-
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     seq = make_sequence(args.frames, args.points)

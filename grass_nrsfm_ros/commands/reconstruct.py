@@ -6,17 +6,28 @@ string ``report``). The solver needs complete tracks: an input whose ``visible: 
 entries as unobserved is refused, unless ``--complete-tracks`` keeps the tracks seen in every
 frame (their columns are saved as ``points``, which ``evaluate`` uses). A bag directory or
 ``.mcap``/``.bag`` file runs the node's sliding-window pipeline offline and writes an output
-bag (there, each window uses the tracks it sees throughout).
+bag (there, each window uses the tracks it sees throughout): :func:`reconstruct_bag`, which
+the demo uses too, owns that offline run.
 """
+from collections import Counter
+from dataclasses import dataclass, field
 import json
+import os
 from pathlib import Path
+import shutil
 import sys
 import time
 
 import numpy as np
 
+from grass_nrsfm_ros import bag
 from grass_nrsfm_ros.cli import UserError
+from grass_nrsfm_ros.cloud import CloudError, decode_tracks
 from grass_nrsfm_ros.commands.npz import complete_tracks, load_tracks
+from grass_nrsfm_ros.live import make_pipeline
+from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM
+from grass_nrsfm_ros.nrsfm.measurement import validate_shapes
+from grass_nrsfm_ros.params import load_config, solver_kwargs
 
 
 def add_arguments(parser):
@@ -32,9 +43,6 @@ def add_arguments(parser):
 
 def solver_from_config(path):
     """A GrassmannNRSfM built from the solver entries of a params file (or defaults)."""
-    from grass_nrsfm_ros.nrsfm import GrassmannNRSfM
-    from grass_nrsfm_ros.params import load_config, solver_kwargs
-
     config = load_config(path) if path else {}
     return GrassmannNRSfM(**solver_kwargs(config)), config
 
@@ -63,8 +71,6 @@ def observed_tracks(path, complete_only):
     """``(W: (2F, P'), S_gt: (3F, P') or None, points: (P',) or None)`` from an .npz: all
     tracks, or with ``complete_only`` those seen in every frame (``points``: their columns)
     where ``visible`` marks missing entries (refused otherwise)."""
-    from grass_nrsfm_ros.nrsfm.measurement import validate_shapes
-
     W, S_gt, visible = load_tracks(path)
     F, P = W.shape[0] // 2, W.shape[1]
     if S_gt is not None:                 # checked before a long solve, not after it
@@ -86,8 +92,6 @@ def observed_tracks(path, complete_only):
 
 def check_writable(path):
     """UserError unless ``path``'s folder exists and may be written to."""
-    import os
-
     folder = Path(path).resolve().parent
     if not folder.is_dir() or not os.access(folder, os.W_OK):
         raise UserError(f'cannot write {path}: folder {folder} does not exist or is not '
@@ -95,8 +99,6 @@ def check_writable(path):
 
 
 def reconstruct_npz(args):
-    from grass_nrsfm_ros.nrsfm import e3d
-
     W, S_gt, points = observed_tracks(args.input, args.complete_tracks)
     solver, _ = solver_from_config(args.config)
     check_writable(args.output)                          # before a long solve, not after it
@@ -117,15 +119,120 @@ def reconstruct_npz(args):
     return 0
 
 
+@dataclass
+class ReconstructionReport:
+    """What :func:`reconstruct_bag` did: frames in and out, windows, refusals, timings."""
+
+    out_path: Path
+    frames_in: int = 0
+    frames_out: int = 0
+    frames_refined: int = 0
+    windows: int = 0
+    refused: list = field(default_factory=list)      # one line per refused frame or window
+    copied: Counter = field(default_factory=Counter)  # input topic -> messages copied
+    seconds: float = 0.0
+    cpu_seconds: float = 0.0
+
+
+def text_progress(stream=None, width=30):
+    """A ``progress(done, total)`` callback drawing ``[####    ] done/total`` on stderr."""
+    stream = stream or sys.stderr
+    state = {'last': -1.0}
+
+    def draw(done, total):
+        now = time.monotonic()
+        if done < total and now - state['last'] < 0.1:
+            return
+        state['last'] = now
+        filled = int(width * done / max(total, 1))
+        stream.write(f'\r[{"#" * filled}{" " * (width - filled)}] {done}/{total} frames')
+        if done >= total:
+            stream.write('\n')
+        stream.flush()
+    return draw
+
+
+def reconstruct_bag(in_path, out_path, pipeline, *, topic=bag.TRACKS_TOPIC,
+                    points_topic=bag.POINTS_TOPIC, refined_topic=bag.REFINED_TOPIC,
+                    copy_inputs=True, progress=None, skip_errors=(ValueError,)):
+    """Run the pipeline over a tracks bag offline, each window solved as it closes (so the
+    output is reproducible), as fast as the solver goes, and write a bag at ``out_path`` with
+    ``points_topic`` (one cloud per frame as tracked on arrival, or as its window published it
+    with ``output='windows'``), ``refined_topic`` (each frame once its window is solved), both
+    stamped with the frame's stamp and logged at its tracks' receive time, and, with
+    ``copy_inputs``, every input message (CDR as recorded; for a ROS 1 source only the tracks,
+    re-encoded).
+
+    ``pipeline`` is a :class:`grass_nrsfm_ros.live.LivePipeline` (or anything with
+    ``add_frame(stamp_ns, ids, uv, frame_id) -> Step``, ``solve(window) -> Step`` and
+    ``flush() -> [window]``; a Step's ``points`` and ``refined`` results have ``stamp_ns,
+    frame_id, ids: (P,), xyz: (P, 3)``, its ``windows`` are to solve). Frames and windows
+    that raise one of ``skip_errors`` are refused and listed in the report.
+    ``progress(done, total)`` is called after every input frame. Returns a
+    :class:`ReconstructionReport`.
+    """
+    report = ReconstructionReport(out_path=Path(out_path))
+    t_wall, t_cpu = time.perf_counter(), time.process_time()
+    with bag.BagReader(in_path) as src, bag.BagWriter(out_path) as out:
+        tracks_conns = src.connections(topic)
+        total = sum(c.msgcount for c in tracks_conns)
+        received = {}                                  # stamp -> receive time of its tracks
+        conns = src.reader.connections if copy_inputs else tracks_conns
+        if not src.is_ros1:
+            for c in conns:
+                out.add_topic(c.topic, c.msgtype, definition=bag.definition_of(c))
+
+        def emit(step):
+            for results, name in ((step.points, points_topic), (step.refined, refined_topic)):
+                for r in results:
+                    out.write_points(np.asarray(r.xyz), np.asarray(r.ids), r.stamp_ns,
+                                     r.frame_id, topic=name,
+                                     t_ns=received.get(r.stamp_ns, r.stamp_ns))
+            report.frames_out += len(step.points)
+            report.frames_refined += len(step.refined)
+
+        def solve(windows):
+            for window in windows:
+                report.windows += 1
+                try:
+                    emit(pipeline.solve(window))
+                except skip_errors as exc:
+                    report.refused.append(f'window {report.windows}: {exc}')
+
+        for conn, t_ns, raw in src.messages(conns):
+            is_tracks = conn.topic == topic
+            if copy_inputs and not src.is_ros1:
+                out.write(conn.topic, raw, t_ns)
+                report.copied[conn.topic] += 1
+            if not is_tracks:
+                continue
+            msg = src.decode(raw, conn)
+            stamp = bag.stamp_ns(msg.header.stamp)
+            if copy_inputs and src.is_ros1:
+                out.add_topic(topic, bag.POINTCLOUD2)
+                out.write(topic, bag.cloud_cdr(bag.tracks_fields(msg), stamp, msg.header.frame_id),
+                          t_ns)
+                report.copied[topic] += 1
+            report.frames_in += 1
+            try:
+                tracks = decode_tracks(msg)
+                received.setdefault(stamp, t_ns)
+                step = pipeline.add_frame(stamp, tracks.ids, tracks.uv, msg.header.frame_id)
+                emit(step)
+                solve(step.windows)
+            except (CloudError, *skip_errors) as exc:
+                report.refused.append(f'frame {report.frames_in - 1} (stamp {stamp}): {exc}')
+            if progress is not None:
+                progress(report.frames_in, total)
+        solve(pipeline.flush())
+    report.seconds = time.perf_counter() - t_wall
+    report.cpu_seconds = time.process_time() - t_cpu
+    return report
+
+
 def reconstruct_bag_file(args):
     """The node's sliding-window pipeline over a tracks bag, offline, into an output bag; a
     refused input (corrupt or truncated bag, missing topic) leaves no output behind."""
-    import shutil
-
-    from grass_nrsfm_ros import bag
-    from grass_nrsfm_ros.params import load_config
-    from grass_nrsfm_ros.live import make_pipeline
-
     config = load_config(args.config) if args.config else {}
     known = bag.topics(args.input)                      # corrupt bags fail here, before output
     if args.topic not in known:
@@ -135,8 +242,8 @@ def reconstruct_bag_file(args):
     out = Path(args.output)
     existed = out.exists()
     try:
-        report = bag.reconstruct_bag(args.input, out, pipeline, topic=args.topic,
-                                     progress=None if args.quiet else bag.text_progress())
+        report = reconstruct_bag(args.input, out, pipeline, topic=args.topic,
+                                 progress=None if args.quiet else text_progress())
     except BaseException:
         if not existed and out.exists():
             shutil.rmtree(out)                          # no half-written output bag

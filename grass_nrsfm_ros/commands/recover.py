@@ -4,6 +4,7 @@ A recording that was killed (``kill -9``, power loss, full disk) has no ``metada
 MCAP summary or index, and a truncated last chunk. This reads every complete record in order
 and writes a normal bag (default ``BAG_recovered``); the incomplete tail is reported.
 """
+from grass_nrsfm_ros import bag
 
 
 def add_arguments(parser):
@@ -12,8 +13,6 @@ def add_arguments(parser):
 
 
 def run(args):
-    from grass_nrsfm_ros import bag
-
     report = bag.recover(args.bag, args.output)
     for topic, n in sorted(report.counts.items()):
         print(f'{topic}: {n} messages')

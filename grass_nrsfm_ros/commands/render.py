@@ -12,8 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
+from grass_nrsfm_ros import bag
 from grass_nrsfm_ros.cli import UserError
 from grass_nrsfm_ros.commands.npz import opened
+from grass_nrsfm_ros.nrsfm.metrics import e3d, procrustes_align
 
 PLOT_HINT = "pictures need matplotlib: pip install 'grass_nrsfm_ros[plot]'"
 
@@ -57,8 +59,6 @@ def frames_from_npz(path, key):
 
 def frames_from_bag(path, topic):
     """``[(stamp_ns, ids, xyz: (3, P))]`` in stamp order (latest cloud per stamp), or None."""
-    from grass_nrsfm_ros import bag
-
     try:
         by_stamp = {f.stamp_ns: (f.ids, f.xyz.T) for f in bag.read_points(path, topic)}
     except bag.TopicNotFoundError:
@@ -75,8 +75,6 @@ def load(path, est_key='S', gt_key='S_gt', points_topic='/points', gt_topic='/gr
 
 def aligned_pair(est, truth):
     """Estimate aligned to truth on their common ids: ``(est (3, P), truth (3, P), e3D)``."""
-    from grass_nrsfm_ros.nrsfm.metrics import e3d, procrustes_align
-
     common, ie, it = np.intersect1d(est[1], truth[1], return_indices=True)
     X, Y = est[2][:, ie], truth[2][:, it]
     ok = np.isfinite(X).all(axis=0) & np.isfinite(Y).all(axis=0)

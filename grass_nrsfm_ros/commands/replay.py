@@ -13,7 +13,12 @@ import signal
 import time
 
 import numpy as np
+import rclpy
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from rosgraph_msgs.msg import Clock
 
+from grass_nrsfm_ros import bag
 from grass_nrsfm_ros.cli import UserError
 
 #: longest sleep between two checks for Ctrl-C while waiting for a message's time
@@ -78,10 +83,6 @@ class Player:
     """Publish one topic of a bag with scaled timing; one instance per run."""
 
     def __init__(self, node, args):
-        from rclpy.qos import QoSProfile, ReliabilityPolicy
-
-        from grass_nrsfm_ros import bag
-
         self.node, self.args = node, args
         known = bag.topics(args.bag)
         if args.topic not in known:
@@ -93,7 +94,6 @@ class Player:
         self.pub = node.create_publisher(self.cls, args.remap or args.topic, qos)
         self.clock_pub = None
         if args.clock:
-            from rosgraph_msgs.msg import Clock
             self.clock_pub = node.create_publisher(Clock, '/clock', 10)
         self.published = 0
         self.stopped = False                  # set by a signal handler (see run)
@@ -103,8 +103,6 @@ class Player:
         self.stopped = True
 
     def publish_clock(self, t_ns):
-        from rosgraph_msgs.msg import Clock
-
         msg = Clock()
         msg.clock.sec, msg.clock.nanosec = divmod(int(t_ns), 1_000_000_000)
         self.clock_pub.publish(msg)
@@ -112,8 +110,6 @@ class Player:
     def wait_until(self, target, bag_time_at, t_target):
         """Sleep (spinning) until monotonic ``target``, publishing /clock meanwhile (never past
         ``t_target``, the bag time of the message due then, so /clock does not step back)."""
-        import rclpy
-
         period = 1.0 / self.args.clock_hz if self.clock_pub else MAX_SLEEP_S
         while not self.stopped:
             now = time.monotonic()
@@ -127,8 +123,6 @@ class Player:
                 self.publish_clock(min(bag_time_at(time.monotonic()), t_target))
 
     def play_once(self):
-        from grass_nrsfm_ros import bag
-
         wall0, t0 = None, None
         rate = self.args.rate
         for t_ns, raw, _, is_ros1, decode in bag.iter_raw(self.args.bag, self.args.topic,
@@ -145,8 +139,6 @@ class Player:
             self.published += 1
 
     def wait_for_subscribers(self, n, timeout=30.0):
-        import rclpy
-
         deadline = time.monotonic() + timeout
         while self.pub.get_subscription_count() < n and not self.stopped:
             if time.monotonic() > deadline:
@@ -158,9 +150,6 @@ class Player:
 def run(args):
     if args.rate <= 0:
         raise UserError(f'--rate must be positive; got {args.rate}')
-    import rclpy
-    from rclpy.signals import SignalHandlerOptions
-
     # Ctrl-C / SIGTERM only set a flag that the playing loop reads between messages. With
     # rclpy's own handlers, which shut the context down at once from C, a publish under way
     # failed ("publisher's context is invalid": a traceback, exit code 1); and a

@@ -1,0 +1,242 @@
+"""Test doubles and the inputs several test files share (one module, imported as ``doubles``:
+pytest puts test/ on the path, and the node tests' launch strings run from test/).
+
+Inputs: :func:`bending_sheet` (``W: (2F, P)`` pixels, ``S: (3F, P)``, ``ids: (P,)``),
+:func:`random_rotations` (``(F, 3, 3)``). A real rigid solver, :class:`RigidALS` with its
+:class:`RigidWarmStart`, which the node and pipeline tests inject in place of GrassmannNRSfM;
+solvers that misbehave (NaN, slow, not cancellable); stand-ins with the solver's or the
+pipeline's protocol.
+"""
+from dataclasses import dataclass
+import time
+from types import SimpleNamespace
+
+import numpy as np
+
+from grass_nrsfm_ros.nrsfm import GrassmannNRSfM
+from grass_nrsfm_ros.nrsfm.measurement import as_frames, centre
+from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
+
+
+# -- shared inputs ----------------------------------------------------------------------------
+def sheet_rotation(yaw, pitch):
+    """The camera of :func:`bending_sheet`: yaw about y, then pitch about x."""
+    cy, sy, cp, sp = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch)
+    Ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    Rx = np.array([[1, 0, 0], [0, cp, -sp], [0, sp, cp]])
+    return Rx @ Ry
+
+
+def bending_sheet(F=60, P=200, *, bend=0.15, noise=0.0, seed=0):
+    """A bending sheet seen by a turning orthographic camera, in pixels.
+
+    Returns ``W: (2F, P)`` (with a drifting translation), ``S: (3F, P)`` camera-frame ground
+    truth, ``ids: (P,)`` track ids. ``bend`` scales the non-rigid part.
+    """
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(-1, 1, (2, P))
+    base = np.vstack([xy, 0.4 * np.cos(2 * xy[0]) * np.cos(1.5 * xy[1])])
+    t = np.linspace(0, 1, F)
+    S_world = np.stack([base + bend * np.sin(2 * np.pi * tt) * np.vstack(
+        [0 * xy[0], 0 * xy[0], xy[0] ** 2 - 0.3]) for tt in t])            # (F, 3, P)
+    R = np.stack([sheet_rotation(0.8 * np.sin(2 * np.pi * tt), 0.4 * np.cos(3 * tt)) for tt in t])
+    S = (R @ S_world) * 100.0                                             # pixels
+    W = S[:, :2, :] + np.stack([200 + 20 * t, 150 - 10 * t], axis=1)[:, :, None]
+    W = W + noise * rng.standard_normal(W.shape)
+    ids = rng.permutation(10 * P)[:P].astype(np.uint32) + 5
+    return W.reshape(2 * F, P), S.reshape(3 * F, P), ids
+
+
+# -- a real rigid solver (the node tests inject it) --------------------------------------------
+@dataclass
+class RigidWarmStart:
+    """The warm start the rigid solver takes (the fields of nrsfm.WarmStart it reads)."""
+    R: np.ndarray = None
+    S: np.ndarray = None
+    known: np.ndarray = None
+    groups: np.ndarray = None
+    rotation_method: str = None
+
+
+def camera_rows(A):
+    """Nearest 2x3 matrices with orthonormal rows to ``A: (F, 2, 3)``."""
+    U, _, Vt = np.linalg.svd(A, full_matrices=False)
+    return U @ Vt
+
+
+def full_rotation(M):
+    """``M: (F, 2, 3)`` orthonormal rows -> ``(F, 3, 3)`` rotations (third row = cross)."""
+    return np.concatenate([M, np.cross(M[:, 0], M[:, 1])[:, None, :]], axis=1)
+
+
+def tomasi_kanade(Wc):
+    """Rigid factorisation of centred ``Wc: (2F, P)``: cameras ``(F, 2, 3)``, shape ``(3, P)``."""
+    U, s, Vt = np.linalg.svd(Wc, full_matrices=False)
+    M = U[:, :3] * np.sqrt(s[:3])
+    m = M.reshape(-1, 2, 3)
+
+    def row(a, b):            # coefficients of a^T Q b for symmetric Q (6 unknowns)
+        return np.stack([a[:, 0] * b[:, 0], a[:, 0] * b[:, 1] + a[:, 1] * b[:, 0],
+                         a[:, 0] * b[:, 2] + a[:, 2] * b[:, 0], a[:, 1] * b[:, 1],
+                         a[:, 1] * b[:, 2] + a[:, 2] * b[:, 1], a[:, 2] * b[:, 2]], axis=1)
+    A = np.vstack([row(m[:, 0], m[:, 0]) - row(m[:, 1], m[:, 1]), row(m[:, 0], m[:, 1]),
+                   row(m[:, 0], m[:, 0])])
+    b = np.concatenate([np.zeros(2 * len(m)), np.ones(len(m))])
+    q = np.linalg.lstsq(A, b, rcond=None)[0]
+    Q = np.array([[q[0], q[1], q[2]], [q[1], q[3], q[4]], [q[2], q[4], q[5]]])
+    w, V = np.linalg.eigh(Q)
+    G = V * np.sqrt(np.clip(w, 1e-12, None))
+    cams = camera_rows(m @ G)
+    return cams, np.linalg.pinv(cams.reshape(-1, 3)) @ Wc
+
+
+class RigidALS:
+    """Iterative rigid factorisation: start from Tomasi-Kanade (or a warm start's rotations),
+    then alternate shape (least squares) and cameras (a majorise-minimise step on the
+    orthonormal-rows constraint) until the
+    relative change of the residual is below ``tol``."""
+
+    def __init__(self, tol=1e-7, max_iterations=500):
+        self.tol, self.max_iterations = tol, max_iterations
+
+    def fit(self, W, init=None):
+        start = time.process_time()
+        Wc, t = centre(W)
+        cams, X = tomasi_kanade(Wc)
+        if init is not None and init.R is not None and init.known.any():
+            # rotate the closed-form start into the warm start's world, keep its known cameras
+            known = init.known
+            Q = camera_rows(np.einsum('fij,fik->jk', cams[known], init.R[known, :2])[None])[0]
+            cams = cams @ Q
+            cams[known] = init.R[known, :2]
+            X = np.linalg.lstsq(cams.reshape(-1, 3), Wc, rcond=None)[0]
+        previous = np.inf
+        for it in range(1, self.max_iterations + 1):
+            # one majorise-minimise step per frame: min ||W_f - M_f X|| over orthonormal rows
+            G = X @ X.T
+            step = 1.0 / np.linalg.eigvalsh(G)[-1]
+            cams = camera_rows(cams + step * (as_frames(Wc, 2) @ X.T - cams @ G))
+            X = np.linalg.lstsq(cams.reshape(-1, 3), Wc, rcond=None)[0]
+            residual = np.linalg.norm(Wc - cams.reshape(-1, 3) @ X)
+            if previous - residual <= self.tol * max(residual, 1e-12):
+                break
+            previous = residual
+        R = full_rotation(cams)
+        S = (R @ X).reshape(-1, X.shape[1])
+        report = SimpleNamespace(iterations=it, residual=residual,
+                                 seconds={'total': time.process_time() - start})
+        return SimpleNamespace(S=S, R=R, translation=t, groups=None, report=report)
+
+
+def recording_rigid(seen):
+    """A RigidALS solver factory that appends each fit's ``(W, init)`` to ``seen``."""
+    class Recording(RigidALS):
+        def fit(self, W, init=None):
+            seen.append((W, init))
+            return super().fit(W, init)
+    return Recording
+
+
+def random_rotations(F, rng):
+    """``(F, 3, 3)`` rotations, uniformly random (QR of Gaussians, determinant +1)."""
+    Q, _ = np.linalg.qr(rng.normal(size=(F, 3, 3)))
+    return Q * np.sign(np.linalg.det(Q))[:, None, None]
+
+
+def wobbling_rotations(F, rng, amplitude=0.5):
+    """``(F, 3, 3)`` rotations turning smoothly about all three axes (``amplitude`` radians)."""
+    t = np.linspace(0, 1, F)
+    angles = amplitude * np.sin(2 * np.pi * rng.uniform(0.5, 1.5, 3)[:, None] * t
+                                + rng.uniform(0, 2 * np.pi, 3)[:, None])
+    out = []
+    for a, b, c in angles.T:
+        Rx = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+        Ry = np.array([[np.cos(b), 0, np.sin(b)], [0, 1, 0], [-np.sin(b), 0, np.cos(b)]])
+        Rz = np.array([[np.cos(c), -np.sin(c), 0], [np.sin(c), np.cos(c), 0], [0, 0, 1]])
+        out.append(Rz @ Ry @ Rx)
+    return np.array(out)
+
+
+# -- solvers that misbehave -------------------------------------------------------------------
+class NaNSolver:
+    """A broken solver: the rigid result with NaN in one frame's shape."""
+
+    def fit(self, W, init=None):
+        result = RigidALS().fit(W, init)
+        result.S[3, :5] = np.nan
+        return result
+
+
+class SlowSolver:
+    """The rigid test solver after ``SECONDS`` of 'iterations' (0.05 s each), each reported to
+    ``progress(iteration, report)`` as GrassmannNRSfM does (so a node can cancel it). The
+    sleeps stand for work: the node's tests need a solve that takes long."""
+
+    SECONDS = 30.0
+
+    def fit(self, W, init=None, progress=None):
+        report = SimpleNamespace(iterations=0)
+        for it in range(int(self.SECONDS / 0.05)):
+            time.sleep(0.05)
+            report.iterations = it + 1
+            if progress is not None:
+                progress(it + 1, report)
+        return RigidALS().fit(W, init)
+
+
+class StubbornSolver(SlowSolver):
+    """A slow solver without a progress callback: it cannot be cancelled."""
+
+    def fit(self, W, init=None):
+        return super().fit(W, init, None)
+
+
+# -- stand-ins with the solver's or the pipeline's protocol -----------------------------------
+class RigidPerWindow:
+    """Rigid factorisation per window (ignores any warm start)."""
+
+    def fit(self, W, init=None):
+        R, S = rigid_factorisation(W)
+        return SimpleNamespace(S=S, R=R, groups=None, report=None)
+
+
+class RecordingGrassmann:
+    """A GrassmannNRSfM factory that keeps each fit's init, result and report."""
+
+    def __init__(self):
+        self.reports, self.inits, self.results = [], [], []
+
+    def __call__(self):
+        reports, inits, results = self.reports, self.inits, self.results
+
+        class Fit(GrassmannNRSfM):
+            def fit(self, W, init=None):
+                result = super().fit(W, init=init)
+                reports.append(result.report)
+                inits.append(init)
+                results.append(result)
+                return result
+        return Fit()
+
+
+class ChunkPipeline:
+    """A stand-in with SlidingWindow's protocol: windows of 3 frames, xyz = (u, v, u + v)."""
+
+    def __init__(self):
+        self.buffer = []
+
+    def add_frame(self, stamp_ns, ids, uv, frame_id=''):
+        if len(ids) < 3:
+            raise ValueError(f'{len(ids)} tracks')
+        self.buffer.append((stamp_ns, frame_id, ids, uv))
+        if len(self.buffer) == 3:
+            return self.flush()
+        return []
+
+    def flush(self):
+        window, self.buffer = self.buffer, []
+        return [window] if window else []
+
+    def solve(self, window):
+        return [SimpleNamespace(stamp_ns=s, frame_id=f, ids=i,
+                                xyz=np.c_[uv, uv.sum(axis=1)]) for s, f, i, uv in window]
