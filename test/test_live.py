@@ -3,13 +3,13 @@ against a real rigid solver and the Grassmannian one."""
 import numpy as np
 import pytest
 
+from doubles import bending_sheet as make_sequence, RigidALS, RigidWarmStart
 from grass_nrsfm_ros.live import LivePipeline, reconstruct_live
 from grass_nrsfm_ros.nrsfm import tracking
 from grass_nrsfm_ros.nrsfm.measurement import as_frames
 from grass_nrsfm_ros.nrsfm.metrics import e3d
 from grass_nrsfm_ros.nrsfm.synthetic import make_sequence as make_surface
 from grass_nrsfm_ros.pipeline import reconstruct_sequence, SlidingWindow
-from test_pipeline import make_sequence, RigidALS, RigidWarmStart  # noqa: I100, I201
 
 
 def random_rotation(rng):
