@@ -12,7 +12,7 @@ import time
 
 from . import common
 
-SUITES = ('accuracy', 'noise', 'parameters', 'scale', 'streaming')
+SUITES = ('accuracy', 'noise', 'parameters', 'scale', 'streaming', 'live')
 
 
 def parse_args(argv):

@@ -78,6 +78,15 @@ def clouds(points, n_frames=90, seed=0):
             for uv in as_frames(W, 2)]
 
 
+def latency_figures(latencies):
+    """p50 / p95 / max (ms) of the tracks -> points latencies measured by the feeder."""
+    if not latencies:
+        return None
+    p50, p95 = np.percentile(latencies, [50, 95])
+    return dict(p50=round(1e3 * p50, 1), p95=round(1e3 * p95, 1),
+                max=round(1e3 * max(latencies), 1), n=len(latencies))
+
+
 def memory_figures(samples, warm_frames, warm_solves=2):
     """RSS figures from ``samples``: ``(t_s, rss_mb, messages received, windows solved)`` once a
     second. Warm-up ends at the first sample with ``warm_frames`` messages received (the
@@ -141,7 +150,7 @@ def run(seconds=600.0, points=30_000, rate=30.0, solver='rigid', window=30, stri
             msg = messages[k % len(messages)]
             msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(
                 t0_ns + int(k * period * 1e9), 10 ** 9)
-            feeder.pub.publish(msg)
+            feeder.publish(msg)
             if time.monotonic() >= next_sample:
                 rss.append(sample(start, proc, feeder))
                 next_sample += 1.0
@@ -157,7 +166,8 @@ def run(seconds=600.0, points=30_000, rate=30.0, solver='rigid', window=30, stri
                    stride=stride, context_frames=context, sent=n_total,
                    send_seconds=round(send_seconds, 1),
                    sends_late_by_more_than_a_period=late, exit_code=code,
-                   points_clouds_received_by_subscriber=received_points)
+                   points_clouds_received_by_subscriber=received_points,
+                   latency_ms=latency_figures(feeder.latencies))
     if counts is None:
         figures['error'] = 'diagnostics never settled'
         figures['last_diagnostics'] = feeder.diagnostic_values()

@@ -134,12 +134,40 @@ def streaming_table(doc):
     return lines
 
 
+def live_table(doc):
+    lines = ['| sequence | F x P | points (all frames) | points / windows after 1st model | '
+             'refined | windows | mapping CPU s / window (all tracks) | tracking ms p95 |',
+             '|---|---|---|---|---|---|---|---|']
+    for r in doc['rows']:
+        after = (f'{fmt(r["e3d_points_after_first_model"])} / '
+                 f'{fmt(r.get("e3d_windows_after_first_model"))}')
+        lines.append(f'| {r["sequence"]} | {r["F"]} x {r["P"]} | {fmt(r["e3d_points"])} | '
+                     f'{after} | {fmt(r["e3d_refined"])} | {fmt(r["e3d_windows"])} | '
+                     f'{fmt(r["mapping_cpu_per_window_s"], 2)} '
+                     f'({fmt(r["windows_cpu_per_window_s"], 2)}) | '
+                     f'{fmt(r["tracking_ms_p95"], 1)} |')
+    node = load(common.RESULTS, 'live_node') or {}
+    if node:
+        lines += ['', 'The node over DDS, 300 frames of the slow face at 30 Hz '
+                  '(`python -m bench.live --node`):', '',
+                  '| run | frames back | latency ms p50 / p95 / max | e3D | first model after |',
+                  '|---|---|---|---|---|']
+        for key, r in sorted(node.items()):
+            lines.append(f'| {key} tracks | {r["frames_received"]} / {r["frames"]} | '
+                         f'{fmt(r["latency_ms_p50"], 1)} / {fmt(r["latency_ms_p95"], 1)} / '
+                         f'{fmt(r["latency_ms_max"], 1)} | {fmt(r["e3d_received"])} | '
+                         f'{r["diagnostics"].get("first model after frames", "-")} frames |')
+    return lines
+
+
 SECTIONS = (('accuracy', 'Accuracy (e3D; "A": Akhter\'s metric, the one of the published mocap '
              'numbers; PTA K chosen against ground truth)', accuracy_table),
             ('noise', 'Noise', noise_table),
             ('parameters', 'Parameters and ablation', parameters_table),
             ('scale', 'Scale (fresh process per case; exponents: CPU time / memory)', scale_table),
-            ('streaming', 'Streaming (pipeline.SlidingWindow, no ROS)', streaming_table))
+            ('streaming', 'Streaming (pipeline.SlidingWindow, no ROS)', streaming_table),
+            ('live', 'Live (tracking on arrival, windows behind it; e3D; offline, each window '
+             'solved as it closes)', live_table))
 
 
 def markdown(results):

@@ -1,27 +1,26 @@
-"""The ROS 2 node: wiring only. ``tracks`` (PointCloud2: track_id, u, v per camera frame) in,
-``points`` (PointCloud2: x, y, z, track_id per reconstructed frame) and ``/diagnostics`` out;
+"""The ROS 2 node: wiring only. ``tracks`` (PointCloud2: track_id, u, v per camera frame) in;
+``points`` (PointCloud2: x, y, z, track_id; every frame, tracked on arrival),
+``points/refined`` (the same frames once their window is solved) and ``/diagnostics`` out;
 optionally ``mesh`` (visualization_msgs/Marker TRIANGLE_LIST, ``publish_mesh``); service
 ``~/reset`` (std_srvs/Trigger). The input's reliability follows ``input_reliability``
 (docs/decisions/0300-input-qos.md); rates and stamp delay are bookkept in
 :mod:`grass_nrsfm_ros.rates`.
 
-The algorithm lives in :mod:`grass_nrsfm_ros.pipeline` (windows, warm start, alignment) and
+The algorithm lives in :mod:`grass_nrsfm_ros.live` (tracking against the newest model),
+:mod:`grass_nrsfm_ros.pipeline` (windows, warm start, alignment) and
 :mod:`grass_nrsfm_ros.nrsfm`; here: parameters (:mod:`grass_nrsfm_ros.params`), decoding,
-one worker thread for solves, publishing, logging, recording.
+one worker thread for solves (mapping), publishing, logging, recording.
 
-Threading: a SingleThreadedExecutor runs the input subscription and the housekeeping (frames
-stay in order); a closed window is handed to one worker thread and the callback returns at
-once. One executor thread, not a MultiThreadedExecutor: under load the solver thread holds the
-GIL most of the time, and every hand-off between executor threads waits for it again (measured
-at 30 Hz, 30k points, a busy 2-core machine: the multi-threaded executor fell 3.3 s behind and
-its depth-100 input history overwrote 12-90 of 600 frames; one thread kept up, 0.1 s behind).
-While a solve runs, newer windows replace the one waiting (counted as dropped windows): the
-node skips to the newest window instead of queueing, and the pipeline still publishes every
-frame that window covers.
+Threading: a SingleThreadedExecutor runs the input subscription (which tracks and publishes
+each frame at once) and the housekeeping (frames stay in order); a closed window is handed to
+one worker thread (the mapping) and the callback returns at once. One executor thread, not a
+MultiThreadedExecutor (docs/decisions: the node's executor). While a solve runs, newer windows
+replace the one waiting (counted as dropped windows): the mapping skips to the newest window.
 
 Start: ``ros2 run grass_nrsfm_ros node --ros-args ...``, ``grass-nrsfm node --ros-args ...``
 or ``python -m grass_nrsfm_ros.node --ros-args ...``.
 """
+from collections import deque
 import os
 import re
 import signal
@@ -31,6 +30,7 @@ import time
 
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+import numpy as np
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
 import rclpy
@@ -48,7 +48,8 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from grass_nrsfm_ros import cloud, mesh, params, qos as offered_qos, rates
-from grass_nrsfm_ros.pipeline import FrameError, make_pipeline, WindowError
+from grass_nrsfm_ros.live import make_pipeline
+from grass_nrsfm_ros.pipeline import FrameError, WindowError
 
 POINTCLOUD2 = 'sensor_msgs/msg/PointCloud2'
 SPIN_PERIOD_S = 0.1          # longest delay before the spin loop sees Ctrl-C / SIGTERM
@@ -56,6 +57,8 @@ LOG_PERIOD_S = 10.0          # the same kind of problem is logged at most once p
 ACK_TIMEOUT_S = 2.0           # longest wait for subscribers to take a burst of clouds
 INPUT_DEPTH = 100            # tracks messages the node's reader keeps (3 s at 30 Hz)
 CLOSE_GRACE_S = 1.0          # close() waits this long for a running solve, then leaves it
+LATENCY_WINDOW = 300         # tracking latencies kept for the percentiles in /diagnostics
+GIL_SWITCH_S = 0.0005        # the mapping thread yields the GIL this often (record 0400)
 RELIABILITY = {'reliable': ReliabilityPolicy.RELIABLE,
                'best_effort': ReliabilityPolicy.BEST_EFFORT}
 
@@ -133,6 +136,7 @@ class ReconstructionNode(Node):
         self._configure_blas()
         self.pipeline = make_pipeline(config, solver_factory, warm_start_class=warm_start_class)
         self._frame_id = config['frame_id']
+        self._inline = config['mapping'] == 'inline'
         self._counts = dict(messages=0, dropped_messages=0, dropped_windows=0, solve_errors=0)
         self._last_solve = {}
         self._lock = threading.Lock()
@@ -145,6 +149,9 @@ class ReconstructionNode(Node):
         self._declare_input(config['input_reliability'], overrides)
         self.points_pub = self.create_publisher(PointCloud2, 'points', qos,
                                                 qos_overriding_options=overrides)
+        self.refined_pub = self.create_publisher(PointCloud2, 'points/refined', qos,
+                                                 qos_overriding_options=overrides)
+        self._latencies = deque(maxlen=LATENCY_WINDOW)     # tracks received -> points sent
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._declare_rates(config)
         self._declare_mesh(config)
@@ -155,7 +162,8 @@ class ReconstructionNode(Node):
         self.recorder = self._open_recorder(config['record_path'])
         self.get_logger().info(
             f'reconstructing {self.tracks_sub.topic_name} -> {self.points_pub.topic_name}: '
-            f'window {self.pipeline.window_size}, stride {self.pipeline.window_stride}')
+            f'{self.pipeline.output} output, window {self.pipeline.windows.window_size}, '
+            f'stride {self.pipeline.windows.window_stride}')
 
     # -- configuration ------------------------------------------------------------------------
     def _declare_parameters(self):
@@ -192,8 +200,9 @@ class ReconstructionNode(Node):
 
         recorder = Recorder(path, on_error=self.get_logger().error)
         self._tracks_recorded = False           # added with its publishers' QoS on 1st message
-        recorder.add_topic(self.points_pub.topic_name, POINTCLOUD2,
-                           qos=self._offered_qos(self.points_pub.topic_name, own=True))
+        for publisher in (self.points_pub, self.refined_pub):
+            recorder.add_topic(publisher.topic_name, POINTCLOUD2,
+                               qos=self._offered_qos(publisher.topic_name, own=True))
         if recorder.error is None:
             self.get_logger().info(f'recording tracks and points to {path}')
         return recorder
@@ -257,7 +266,7 @@ class ReconstructionNode(Node):
         frame starts a new sequence. A solve already running finishes and publishes."""
         with self._lock:
             waiting, self._pending = self._pending, None
-        sequence = self.pipeline.stats['resets'] + 1
+        sequence = self.pipeline.windows.stats['resets'] + 1
         dropped = self.pipeline.reset()
         self._resets_requested += 1
         self._input_rate.reset(time.monotonic())
@@ -341,6 +350,7 @@ class ReconstructionNode(Node):
 
     def _on_tracks_raw(self, raw):
         """Record one serialized tracks message (receive time), then decode and handle it."""
+        self._received = time.monotonic()
         self._input_rate.tick()
         if self.recorder is not None:
             if not self._tracks_recorded:
@@ -370,15 +380,22 @@ class ReconstructionNode(Node):
         if invalid:
             self._log.warning(f'tracks cloud at {stamp} ns: ignored {invalid} points with '
                               'non-finite u/v')
-        resets = self.pipeline.stats['resets']
+        resets = self.pipeline.windows.stats['resets']
         try:
-            windows = self.pipeline.add_frame(stamp, tracks.ids, tracks.uv, msg.header.frame_id)
+            step = self.pipeline.add_frame(stamp, tracks.ids, tracks.uv, msg.header.frame_id)
         except FrameError as exc:
             return self._drop(stamp, f'frame refused: {exc}')
-        if self.pipeline.stats['resets'] != resets:
+        if self.pipeline.windows.stats['resets'] != resets:
             self._log.info(f'all track ids changed at {stamp} ns: started a new sequence')
-        for window in windows:
-            self._submit(window)
+        for result in step.points:
+            self._publish(self.points_pub, result)
+        if step.points:
+            self._latencies.append(time.monotonic() - self._received)
+        for window in step.windows:
+            if self._inline:
+                self._solve_and_publish(window)     # reproducible: as the offline tools
+            else:
+                self._submit(window)
 
     def _drop(self, stamp, reason):
         self._counts['dropped_messages'] += 1
@@ -435,7 +452,8 @@ class ReconstructionNode(Node):
             self._counts['solve_errors'] += 1
             return self.get_logger().error(f'window {window.index} failed: '
                                            f'{type(exc).__name__}: {exc}')
-        self._publish_paced(results)
+        self._publish_paced(self.points_pub, results.points)
+        self._publish_paced(self.refined_pub, results.refined)
         report = self.pipeline.previous.report
         self._last_solve = dict(
             solve_seconds=time.monotonic() - started,
@@ -447,41 +465,69 @@ class ReconstructionNode(Node):
         if not self._stopping.is_set():
             self._publish_diagnostics()
 
-    def _publish_paced(self, results):
+    def _publish_paced(self, publisher, results):
         """Publish a window's frames, at most one QoS history (``depth``) ahead of the slowest
         reliable subscriber: the first window publishes ``window_size`` clouds at once, and a
         KEEP_LAST publisher would otherwise overwrite the ones not yet delivered."""
-        depth = max(1, self.points_pub.qos_profile.depth)
+        depth = max(1, publisher.qos_profile.depth)
         for i, result in enumerate(results):
             if i and i % depth == 0:
-                self.points_pub.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT_S))
-            self._publish(result)
+                publisher.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT_S))
+            self._publish(publisher, result)
         if results and self.mesh_pub is not None and not self._stopping.is_set():
             self._publish_mesh(results[-1])
 
-    def _publish(self, result):
+    def _publish(self, publisher, result):
         if self._stopping.is_set():
             return
         header = Header(stamp=to_stamp(result.stamp_ns),
                         frame_id=self._frame_id or result.frame_id)
         msg = cloud.encode_points(result.xyz, result.ids, header)
-        self.points_pub.publish(msg)
-        self._output_rate.tick()
-        self._output_delay.tick(result.stamp_ns * 1e-9, self.get_clock().now().nanoseconds * 1e-9)
+        publisher.publish(msg)
+        if publisher is self.points_pub:
+            self._output_rate.tick()
+            self._output_delay.tick(result.stamp_ns * 1e-9,
+                                    self.get_clock().now().nanoseconds * 1e-9)
         if self.recorder is not None:
-            self.recorder.write(self.points_pub.topic_name, msg,
-                                self.get_clock().now().nanoseconds)
+            self.recorder.write(publisher.topic_name, msg, self.get_clock().now().nanoseconds)
 
     # -- diagnostics ------------------------------------------------------------------------------
+    def _tracking_values(self):
+        """The tracking half of /diagnostics (live output): latency, residual, model age,
+        mapping backlog, frames tracked and refined."""
+        live = self.pipeline
+        if live.output != 'live':
+            return {}
+        p50, p95 = np.percentile(self._latencies, [50, 95]) if self._latencies else ('', '')
+        last = live.last
+        return {'tracking latency p50 ms': '' if p50 == '' else f'{1e3 * p50:.2f}',
+                'tracking latency p95 ms': '' if p95 == '' else f'{1e3 * p95:.2f}',
+                'tracking residual': '' if last['residual'] is None else
+                f"{last['residual']:.4g}",
+                'model age frames': '' if last['model_age'] is None else last['model_age'],
+                'model rank': '' if last['model_rank'] is None else last['model_rank'],
+                'bootstrap': last['bootstrap'],
+                'mapping backlog': int(self._busy) + int(self._pending is not None),
+                'frames tracked': live.stats['tracked'],
+                'frames refined': live.stats['refined'],
+                'frames not refined': live.windows.stats['frames_lost'],
+                'frames awaiting refinement': live.pending_frames,
+                'fresh windows requested': live.stats['fresh_windows'],
+                'first model after frames': '' if live.stats['first_model_after'] is None
+                else live.stats['first_model_after']}
+
     def _publish_diagnostics(self):
-        stats = self.pipeline.stats
-        behind = self._counts['dropped_windows'] > 0 or stats['frames_lost'] > 0
-        values = {'windows solved': stats['solved'], 'frames published': stats['published'],
+        stats = self.pipeline.windows.stats
+        live = self.pipeline.output == 'live'
+        behind = not live and (self._counts['dropped_windows'] > 0 or stats['frames_lost'] > 0)
+        published = self.pipeline.stats['tracked'] if live else stats['published']
+        values = {'windows solved': stats['solved'], 'frames published': published,
+                  **self._tracking_values(),
                   **self._last_solve, 'messages received': self._counts['messages'],
                   'dropped messages': self._counts['dropped_messages'],
                   'dropped windows': self._counts['dropped_windows'],
-                  'frames lost': stats['frames_lost'],
-                  'frames pending': self.pipeline.pending_frames,
+                  'frames lost': 0 if live else stats['frames_lost'],
+                  'frames pending': 0 if live else self.pipeline.pending_frames,
                   'sequences': stats['resets'] + 1,
                   'windows not solved': self._counts['solve_errors'],
                   'solver busy': self._busy,
@@ -522,6 +568,7 @@ class ReconstructionNode(Node):
 
 def main(args=None, *, solver_factory=None, warm_start_class=None):
     """Run the node until Ctrl-C / SIGTERM; returns the exit code (2: invalid parameters)."""
+    sys.setswitchinterval(GIL_SWITCH_S)
     # Ctrl-C / SIGTERM set a flag that the spin loop reads (at most SPIN_PERIOD_S later).
     # rclpy's own handlers shut the context down from C at once, racing the start-up and the
     # executor: a signal just after the start-up line ended in a traceback and exit code 1

@@ -30,6 +30,9 @@ README_END = '<!-- /params-table -->'
 #: values of ``warm_start`` and ``warm_rotations``
 WARM_STARTS = ('model', 'full', 'off')
 WARM_ROTATIONS = ('refine', 'fit', 'solver')
+#: values of ``output`` and ``mapping``
+OUTPUTS = ('live', 'windows')
+MAPPINGS = ('worker', 'inline')
 #: values of ``input_reliability``
 INPUT_RELIABILITIES = ('auto', 'best_effort', 'reliable')
 #: the fewest frames a window can have
@@ -66,6 +69,26 @@ NODE_PARAMS = (
           "aligned to the previous solution: one more rotation estimate per window), 'fit' "
           '(previous ones; new frames fitted to the previous shape: cheapest, good on dense '
           'surfaces, poor on sparse mocap).', choices=WARM_ROTATIONS),
+    Param('output', 'live', str,
+          "'live': every frame is reconstructed on arrival against the newest solved window's "
+          "shape model and published on points at once; each solved window's frames follow on "
+          "points/refined. 'windows': frames are published on points only when their window is "
+          'solved (the sliding-window behaviour).', choices=OUTPUTS),
+    Param('mapping', 'worker', str,
+          "Where windows are solved: 'worker' (a thread beside the tracking: every frame is "
+          "published at once, refined when its window is solved); 'inline' (in the input "
+          'callback, before the next frame: the output equals the offline tools for the same '
+          'input, but tracking waits for each solve).', choices=MAPPINGS),
+    Param('mapping_tracks', 5000, int,
+          'Most tracks a window is solved on (a fixed subset by track id); the others are '
+          'filled in from their neighbours. 0: all tracks.', range=(0, 10000000)),
+    Param('tracking_prior', 0.0, float,
+          "Pull of each tracked frame's shape coefficients towards the previous frame's "
+          '(relative to the data term); 0: none.', range=(0.0, 1e6)),
+    Param('residual_limit', 3.0, float,
+          'A tracked frame whose reprojection residual exceeds this many times the median of '
+          "the last 30 tracked frames' is still published, and the next window is closed early "
+          'for a fresh model (once per model).', range=(1.0001, 1e6)),
     Param('align_windows', True, bool,
           "Flip each window's depth to agree with the previous window on the overlap, so "
           'published clouds keep one orientation over time.'),
@@ -102,7 +125,7 @@ NODE_PARAMS = (
 )
 #: the parameters SlidingWindow takes
 WINDOW_KEYS = ('window_size', 'window_stride', 'min_tracks', 'warm_start', 'align_windows',
-               'context_frames', 'warm_rotations', 'key_frames')
+               'context_frames', 'warm_rotations', 'key_frames', 'mapping_tracks')
 
 
 def solver_params():

@@ -61,7 +61,7 @@ agree with the previous window on the overlap, so published clouds keep one orie
 """
 from bisect import bisect_left
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import threading
 import time
 
@@ -69,9 +69,12 @@ import numpy as np
 
 from grass_nrsfm_ros import params
 from grass_nrsfm_ros.cloud import strictly_increasing
+from grass_nrsfm_ros.nrsfm.density import fill_dropped
 from grass_nrsfm_ros.nrsfm.measurement import as_frames, centre
 from grass_nrsfm_ros.params import MIN_WINDOW_FRAMES
 
+#: fewest tracks a window may be solved on when ``mapping_tracks`` caps them
+MIN_MAPPING_TRACKS = 100
 #: a context frame joins a solve only while the tracks common to it, the newer context frames
 #: and the window stay at least this share of the window's tracks
 CONTEXT_TRACKS = 0.9
@@ -208,7 +211,7 @@ def default_solver_factory(**solver_kwargs):
     return make
 
 
-def make_pipeline(config, solver_factory=None, **options):
+def make_windows(config, solver_factory=None, **options):
     """The :class:`SlidingWindow` that ``config`` describes (a dict of parameters as from
     :func:`grass_nrsfm_ros.params.load_config` or the node's declarations; absent keys take
     their defaults). ``solver_factory`` replaces ``GrassmannNRSfM(**solver parameters)``;
@@ -229,15 +232,22 @@ class SlidingWindow:
     def __init__(self, solver_factory=None, *, window_size=30, window_stride=10, min_tracks=10,
                  warm_start='model', align_windows=True, metres_per_pixel=1.0,
                  context_frames=60, warm_rotations='solver', warm_start_class=None,
-                 key_frames=30):
+                 key_frames=30, mapping_tracks=0):
         params.check_window(window_size=window_size, window_stride=window_stride,
                             context_frames=context_frames, key_frames=key_frames,
-                            warm_start=warm_start, warm_rotations=warm_rotations)
+                            warm_start=warm_start, warm_rotations=warm_rotations,
+                            mapping_tracks=mapping_tracks)
         self.solver_factory = solver_factory or default_solver_factory()
         self.context_frames, self.warm_rotations = int(context_frames), warm_rotations
         self.key_frames = int(key_frames) if self.context_frames else 0
         self.window_size, self.window_stride = int(window_size), int(window_stride)
         self.min_tracks = int(min_tracks)
+        if mapping_tracks and mapping_tracks < max(self.min_tracks, MIN_MAPPING_TRACKS):
+            raise ValueError(f'mapping_tracks={mapping_tracks}: 0 (all) or at least '
+                             f'{max(self.min_tracks, MIN_MAPPING_TRACKS)}')
+        self.mapping_tracks = int(mapping_tracks)
+        self.newest = None              # the Frame the last add_frame accepted
+        self._window_wanted = False
         self.warm_start, self.align_windows = warm_start, bool(align_windows)
         self.metres_per_pixel = float(metres_per_pixel)
         self._warm_start_class = warm_start_class
@@ -272,15 +282,24 @@ class SlidingWindow:
         stamps = [f.stamp_ns for f in self._frames]
         self._frames.insert(bisect_left(stamps, frame.stamp_ns), frame)
         self._count('frames')
-        if len(self._frames) >= self.window_size:
+        self.newest = frame
+        kept = self.window_size - self.window_stride     # frames a window leaves buffered
+        early = self._window_wanted and len(self._frames) > max(kept, MIN_WINDOW_FRAMES - 1)
+        if len(self._frames) >= self.window_size or early:
+            self._window_wanted = False
             windows.append(self._emit(self._frames[:self.window_size]))
-            leaving = self._frames[:self.window_stride]
+            leaving = self._frames[:len(self._frames) - kept]
             spill = len(self._history) + len(leaving) - self._history.maxlen
             if self.context_frames and spill > 0:
                 self._keys.extend((list(self._history) + leaving)[:spill])
             self._history.extend(leaving)
-            self._frames = self._frames[self.window_stride:]
+            self._frames = self._frames[len(leaving):]
         return windows
+
+    def request_window(self):
+        """Close the next window early: at the next frame, over the frames buffered since the
+        last window (the model no longer explains the data)."""
+        self._window_wanted = True
 
     def flush(self):
         """The last window over the newest buffered frames if any of them was never in a window
@@ -294,6 +313,11 @@ class SlidingWindow:
                 self._emitted_until = fresh[-1].stamp_ns
             return []
         return [self._emit(frames)]
+
+    @property
+    def sequence(self):
+        """The current sequence's number (0 first; one more after each reset or id change)."""
+        return self._sequence
 
     def reset(self):
         """Drop the buffered frames (counted lost unless already in a window) and the model
@@ -388,17 +412,22 @@ class SlidingWindow:
         problem = self._problem(window)
         Wc, _ = centre(problem.W)
         init = self._start_for(problem, Wc)
+        keep = self._mapped_tracks(problem.ids)
         solver = self.solver_factory()
-        kwargs = {} if init is None else {'init': init}
+        kwargs = {} if init is None else {'init': subset_init(init, keep)}
         if progress is not None and _takes_progress(solver.fit):
             kwargs['progress'] = progress
-        result = solver.fit(problem.W, **kwargs)
+        result = solver.fit(problem.W if keep is None else problem.W[:, keep], **kwargs)
         S = np.array(result.S, dtype=np.float64)
         R = np.array(result.R, dtype=np.float64)
         if not (np.isfinite(S).all() and np.isfinite(R).all()):
             self._count('failed')
             raise WindowError(f'window {window.index}: the solver returned non-finite shapes or '
                               'rotations; nothing published')
+        groups = getattr(result, 'groups', None)
+        if keep is not None:
+            labels = np.zeros(keep.size, dtype=int) if groups is None else groups
+            S, groups = fill_dropped(S, labels, problem.W, keep)
         Z = as_frames(S, 3)[:, 2, :]
         Z -= Z.mean(axis=1, keepdims=True)
         if self.align_windows and self._depth_disagrees(problem, Z):
@@ -416,10 +445,25 @@ class SlidingWindow:
             self._rotation_check = (problem.sequence, report.rotation_method, problem.stamps) \
                 if full else None
         self._previous = Solution(window.sequence, problem.stamps, problem.ids, uv, S, R,
-                                  getattr(result, 'groups', None), report, residual)
+                                  groups, report, residual)
         self._count('solved')
         c = problem.n_context
         return self._publish(window, problem.ids, as_frames(Wc, 2)[c:], Z[c:])
+
+    def flip_previous(self):
+        """Mirror the depth of the last solution (``S``'s z rows, ``R`` -> ``D R D``), so the
+        next window aligns to the flipped orientation."""
+        p = self._previous
+        S = DEPTH_FLIP @ as_frames(p.S, 3)
+        p.S, p.R = S.reshape(-1, S.shape[-1]), DEPTH_FLIP @ p.R @ DEPTH_FLIP
+
+    def _mapped_tracks(self, ids):
+        """Indices ``(mapping_tracks,)`` (sorted) of the tracks ``ids: (P,)`` the solver sees,
+        or None for all; the same ids are picked in every window (a fixed hash of the id)."""
+        if not self.mapping_tracks or ids.size <= self.mapping_tracks:
+            return None
+        key = (ids.astype(np.uint64) * np.uint64(2654435761)) % np.uint64(1 << 32)
+        return np.sort(np.argsort(key, kind='stable')[:self.mapping_tracks])
 
     def _problem(self, window):
         """What ``window`` is solved as: its context frames (newest first dropped last) then its
@@ -628,6 +672,15 @@ class SlidingWindow:
     def previous(self):
         """The last solved window's Solution (its ``report`` holds the solver's report)."""
         return self._previous
+
+
+def subset_init(init, keep):
+    """``init`` (a WarmStart or None) restricted to the tracks ``keep`` (None: all)."""
+    if init is None or keep is None:
+        return init
+    S = None if init.S is None else np.asarray(init.S)[:, keep]
+    groups = None if init.groups is None else np.asarray(init.groups)[keep]
+    return replace(init, S=S, groups=groups)
 
 
 def reconstruct_sequence(pipeline, stamps, frames, frame_id=''):

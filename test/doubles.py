@@ -13,6 +13,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from grass_nrsfm_ros.live import Step
 from grass_nrsfm_ros.nrsfm import GrassmannNRSfM
 from grass_nrsfm_ros.nrsfm.measurement import as_frames, centre
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
@@ -220,7 +221,8 @@ class RecordingGrassmann:
 
 
 class ChunkPipeline:
-    """A stand-in with SlidingWindow's protocol: windows of 3 frames, xyz = (u, v, u + v)."""
+    """A stand-in with LivePipeline's protocol in ``output='windows'``: windows of 3 frames,
+    xyz = (u, v, u + v), published when solved."""
 
     def __init__(self):
         self.buffer = []
@@ -229,14 +231,13 @@ class ChunkPipeline:
         if len(ids) < 3:
             raise ValueError(f'{len(ids)} tracks')
         self.buffer.append((stamp_ns, frame_id, ids, uv))
-        if len(self.buffer) == 3:
-            return self.flush()
-        return []
+        return Step(windows=tuple(self.flush()) if len(self.buffer) == 3 else ())
 
     def flush(self):
         window, self.buffer = self.buffer, []
         return [window] if window else []
 
     def solve(self, window):
-        return [SimpleNamespace(stamp_ns=s, frame_id=f, ids=i,
-                                xyz=np.c_[uv, uv.sum(axis=1)]) for s, f, i, uv in window]
+        return Step(points=tuple(SimpleNamespace(stamp_ns=s, frame_id=f, ids=i,
+                                                 xyz=np.c_[uv, uv.sum(axis=1)])
+                                 for s, f, i, uv in window))

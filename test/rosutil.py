@@ -40,10 +40,15 @@ class Feeder:
         self.pub = self.node.create_publisher(PointCloud2, 'tracks', tracks_qos)
         self.pub_created = time.monotonic()
         self.points, self.diagnostics = [], []
+        self.sent_at, self.latencies = {}, []       # stamp -> monotonic sent; seconds
         self.last_diagnostics_at = float('-inf')
         self.points_sub = self.node.create_subscription(
-            PointCloud2, 'points', self.points.append if keep_points else self._count_point,
+            PointCloud2, 'points', self._keep_point if keep_points else self._count_point,
             points_depth)
+        self.refined = []
+        self.node.create_subscription(
+            PointCloud2, 'points/refined',
+            self.refined.append if keep_points else (lambda msg: None), points_depth)
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 10)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
@@ -54,6 +59,22 @@ class Feeder:
 
     def _count_point(self, msg):
         self.points_received += 1
+        self._latency(msg)
+
+    def _keep_point(self, msg):
+        self.points.append(msg)
+        self._latency(msg)
+
+    def _latency(self, msg):
+        sent = self.sent_at.pop(msg.header.stamp.sec * 10 ** 9 + msg.header.stamp.nanosec, None)
+        if sent is not None:
+            self.latencies.append(time.monotonic() - sent)
+
+    def publish(self, msg):
+        """Publish a tracks message, noting when, so its ``points`` latency is measured."""
+        self.sent_at[msg.header.stamp.sec * 10 ** 9 + msg.header.stamp.nanosec] = \
+            time.monotonic()
+        self.pub.publish(msg)
 
     def _on_diagnostics(self, msg):
         if any(s.hardware_id == self.node.get_namespace() + '/grass_nrsfm' for s in msg.status):
@@ -152,7 +173,7 @@ def publish(feeder, messages, period=1 / 30):
     start = time.monotonic()
     for i, msg in enumerate(messages):
         time.sleep(max(0.0, start + i * period - time.monotonic()))
-        feeder.pub.publish(msg)
+        feeder.publish(msg)
 
 
 def status_values(msg):

@@ -88,8 +88,11 @@ def test_reset_drops_buffer_and_model_and_starts_a_new_sequence(ros_env, tmp_pat
         messages, ids = frames_at_30hz(45)
         publish(feeder, messages)
         before = feeder.accounted(45)
-        # windows of 30, stride 10: frames 0-39 published, 40-44 buffered
-        assert before['frames published'] == 40 and before['frames pending'] == 5, before
+        # every frame tracked and published; windows of 30, stride 10: frames 0-39 refined,
+        # 40-44 buffered
+        assert before['frames published'] == 45 and before['frames pending'] == 0, before
+        values = feeder.diagnostic_values()
+        assert values['frames refined'] == '40' and values['frames awaiting refinement'] == '5'
         future = client.call_async(Trigger.Request())
         assert feeder.wait_for(future.done, 10)
         answer = future.result()
@@ -101,16 +104,16 @@ def test_reset_drops_buffer_and_model_and_starts_a_new_sequence(ros_env, tmp_pat
         assert feeder.wait_for(lambda: feeder.node_reports(since).get('resets requested') == '1',
                                5)
         values = feeder.node_reports(since)
-        assert values['sequences'] == '2' and values['frames lost'] == '5'
+        assert values['sequences'] == '2' and values['frames not refined'] == '5'
         assert values['last reset'] == answer.message
         # the same tracker goes on (same ids, later stamps): a new sequence from the next frame
         more, _ = frames_at_30hz(40, first=45, seed=0)
         publish(feeder, more)
         after = feeder.accounted(85)
-        assert after['frames published'] == 80 and after['frames lost'] == 5, after
-        assert feeder.wait_for(lambda: len(feeder.points) >= 80, 10)
+        assert after['frames published'] == 85 and after['frames lost'] == 0, after
+        assert feeder.wait_for(lambda: len(feeder.points) >= 85, 10)
         stamps = sorted(stamp_of(m) for m in feeder.points)
-        assert stamps[40:] == sorted(stamp_of(m) for m in more)
+        assert stamps[45:] == sorted(stamp_of(m) for m in more)
     text = log.read_text()
     assert text.count('reset: dropped 5 buffered frames') == 1, text
 
@@ -161,13 +164,14 @@ def test_mesh_marker_and_offered_qos_in_the_recording(ros_env, tmp_path):
         assert feeder.wait_for(lambda: mesh_sub.get_publisher_count() == 1, 10)
         messages, ids = frames_at_30hz(60)
         publish(feeder, messages)
-        assert feeder.wait_for(lambda: len(markers) >= 1 and len(feeder.points) >= 50, 30), \
+        assert feeder.wait_for(lambda: len(markers) >= 1 and len(feeder.refined) >= 50, 30), \
             log.read_text()
     marker = markers[-1]
     assert marker.type == Marker.TRIANGLE_LIST and marker.action == Marker.ADD
     n = len(marker.points)
     assert n > 0 and n % 3 == 0 and len(marker.colors) == n
-    same = next(m for m in feeder.points if stamp_of(m) == stamp_of(marker))
+    # the newest frame of a solved window, as points/refined published it
+    same = next(m for m in feeder.refined if stamp_of(m) == stamp_of(marker))
     got_ids, xyz = cloud.decode_points(same)
     vertices = np.array([[p.x, p.y, p.z] for p in marker.points])
     # every vertex is a published point of that frame

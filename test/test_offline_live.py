@@ -34,7 +34,37 @@ def clouds_by_stamp(messages):
     return out
 
 
-def test_offline_reconstruction_equals_the_live_node(ros_env, tmp_path):
+def feed(feeder, seq, stamps):
+    """Publish the sequence's tracks at 10 Hz (a camera's rate, not a wait)."""
+    uv = as_frames(seq.W, 2).transpose(0, 2, 1)
+    ids = np.arange(seq.n_points, dtype=np.uint32)
+    for f, stamp in enumerate(stamps):
+        header = Header(stamp=Time(sec=int(stamp) // 10 ** 9, nanosec=int(stamp) % 10 ** 9),
+                        frame_id='camera')
+        feeder.publish(cloud.encode_tracks(ids, uv[f], header))
+        time.sleep(PERIOD_NS / 1e9)
+
+
+def assert_same(live, offline, seq, stamps, what):
+    assert sorted(live) == list(stamps), what                 # each frame once, all
+    scale = np.abs(seq.W).max()
+    for stamp in stamps:
+        np.testing.assert_array_equal(live[stamp][0], offline[stamp][0])
+        np.testing.assert_allclose(live[stamp][1], offline[stamp][1], rtol=0, atol=1e-4 * scale,
+                                   err_msg=what)
+    S_live = np.concatenate([live[s][1].T for s in stamps])
+    S_off = np.concatenate([offline[s][1].T for s in stamps])
+    print(f'{what}: max |live - offline| = {np.abs(S_live - S_off).max():.3g}, e3D live '
+          f'{e3d(S_live, seq.S):.4f}, offline {e3d(S_off, seq.S):.4f}')
+    assert abs(e3d(S_live, seq.S) - e3d(S_off, seq.S)) < 1e-4
+
+
+@pytest.mark.parametrize('mapping', ['inline', 'worker'])
+def test_offline_reconstruction_equals_the_live_node(ros_env, tmp_path, mapping):
+    """``mapping:=inline`` solves each window before the next frame, as the offline path does:
+    ``points`` and ``points/refined`` are the same. On the worker thread the model swaps in
+    when its solve ends, so ``points`` depend on timing; ``points/refined`` (the windows, none
+    skipped at 10 Hz) are still the same."""
     seq = make_sequence('inflating', n_frames=40, n_points=300, seed=1)
     stamps = T0 + PERIOD_NS * np.arange(seq.n_frames, dtype=np.int64)
     bag.tracks_bag_from_arrays(seq.W, stamps, tmp_path / 'tracks', frame_id='camera')
@@ -42,28 +72,20 @@ def test_offline_reconstruction_equals_the_live_node(ros_env, tmp_path):
         assert cli.main(['reconstruct', str(tmp_path / 'tracks'), '-o',
                          str(tmp_path / 'offline'), '--quiet']) == 0
     offline = {f.stamp_ns: (f.ids, f.xyz) for f in bag.read_points(tmp_path / 'offline')}
-    assert sorted(offline) == list(stamps)
+    refined = {f.stamp_ns: (f.ids, f.xyz)
+               for f in bag.read_points(tmp_path / 'offline', bag.REFINED_TOPIC)}
+    assert sorted(offline) == sorted(refined) == list(stamps)
 
-    uv = as_frames(seq.W, 2).transpose(0, 2, 1)
-    ids = np.arange(seq.n_points, dtype=np.uint32)
     log = tmp_path / 'node.log'
-    with node_with_feeder(ros_env, log, launch=REAL_SOLVER_LAUNCH) as (_, feeder):
-        for f, stamp in enumerate(stamps):
-            header = Header(stamp=Time(sec=int(stamp) // 10 ** 9, nanosec=int(stamp) % 10 ** 9),
-                            frame_id='camera')
-            feeder.pub.publish(cloud.encode_tracks(ids, uv[f], header))
-            time.sleep(PERIOD_NS / 1e9)              # a 10 Hz camera (a rate, not a wait)
-        assert feeder.wait_for(lambda: len(feeder.points) >= seq.n_frames, 120), \
-            log.read_text()
-        live = clouds_by_stamp(feeder.points)
+    with node_with_feeder(ros_env, log, ['-p', f'mapping:={mapping}'], launch=REAL_SOLVER_LAUNCH,
+                          points_depth=seq.n_frames) as (_, feeder):
+        feed(feeder, seq, stamps)
+        assert feeder.wait_for(lambda: len(feeder.points) >= seq.n_frames
+                               and len(feeder.refined) >= seq.n_frames, 120), log.read_text()
+        live, live_refined = clouds_by_stamp(feeder.points), clouds_by_stamp(feeder.refined)
 
-    assert sorted(live) == list(stamps)                      # each frame published once, all
-    scale = np.abs(seq.W).max()
-    for stamp in stamps:
-        np.testing.assert_array_equal(live[stamp][0], offline[stamp][0])
-        np.testing.assert_allclose(live[stamp][1], offline[stamp][1], rtol=0, atol=1e-4 * scale)
-    S_live = np.concatenate([live[s][1].T for s in stamps])
-    S_off = np.concatenate([offline[s][1].T for s in stamps])
-    print(f'max |live - offline| = {np.abs(S_live - S_off).max():.3g}, e3D live '
-          f'{e3d(S_live, seq.S):.4f}, offline {e3d(S_off, seq.S):.4f}')
-    assert abs(e3d(S_live, seq.S) - e3d(S_off, seq.S)) < 1e-4
+    assert_same(live_refined, refined, seq, stamps, f'{mapping}: points/refined')
+    if mapping == 'inline':
+        assert_same(live, offline, seq, stamps, 'inline: points')
+    else:
+        assert sorted(live) == list(stamps)

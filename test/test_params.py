@@ -123,7 +123,8 @@ def test_node_declares_parameters_from_the_file(monkeypatch, tmp_path):
                      '-p', 'frame_id:=cam'], context=context)
     try:
         node = ReconstructionNode(context=context)
-        assert node.pipeline.window_size == 20 and node.pipeline.window_stride == 10
+        windows = node.pipeline.windows
+        assert windows.window_size == 20 and windows.window_stride == 10
         assert node.get_parameter('frame_id').value == 'cam'
         described = node.describe_parameters(['window_size', 'metres_per_pixel'])
         assert described[0].read_only and described[0].integer_range[0].from_value == 3

@@ -17,9 +17,9 @@ Shapes: ``W: (2F, P)``, ``S: (3F, P)`` as in :mod:`grass_nrsfm_ros.nrsfm.measure
 """
 from grass_nrsfm_ros.bag.messages import (BagError, cloud_cdr, CorruptBagError,
                                           GROUND_TRUTH_TOPIC, message_definition, POINTCLOUD2,
-                                          POINTS_TOPIC, PointsFrame, serialize, stamp_ns,
-                                          TopicNotFoundError, TrackFrame, TRACKS_TOPIC,
-                                          typestore)
+                                          POINTS_TOPIC, PointsFrame, REFINED_TOPIC, serialize,
+                                          stamp_ns, TopicNotFoundError, TrackFrame,
+                                          TRACKS_TOPIC, typestore)
 from grass_nrsfm_ros.bag.read import (bag_size_bytes, BagReader, definition_of,
                                       frames_to_matrix, iter_raw, read_clouds, read_points,
                                       read_S, read_tracks, read_W, topics, tracks_fields)
@@ -33,7 +33,8 @@ __all__ = [
     'DEFAULT_CHUNK_SIZE', 'DEFAULT_FLUSH_PERIOD', 'DEFAULT_QUEUE_SIZE', 'definition_of',
     'frames_to_matrix', 'GROUND_TRUTH_TOPIC', 'iter_raw', 'mcap_files', 'message_definition',
     'POINTCLOUD2', 'POINTS_TOPIC', 'PointsFrame', 'read_clouds', 'read_points', 'read_S',
-    'read_tracks', 'read_W', 'recover', 'RecoveryReport', 'Recorder', 'ROSBAG2_VERSION',
+    'read_tracks', 'read_W', 'recover', 'RecoveryReport', 'Recorder', 'REFINED_TOPIC',
+    'ROSBAG2_VERSION',
     'serialize', 'stamp_ns', 'topics', 'TopicNotFoundError', 'TrackFrame', 'TRACKS_TOPIC',
     'tracks_bag_from_arrays', 'tracks_fields', 'typestore', 'write_metadata',
 ]

@@ -12,6 +12,7 @@ from grass_nrsfm_ros.cloud import cloud_layout
 
 TRACKS_TOPIC = '/tracks'
 POINTS_TOPIC = '/points'
+REFINED_TOPIC = '/points/refined'
 GROUND_TRUTH_TOPIC = '/ground_truth'
 POINTCLOUD2 = 'sensor_msgs/msg/PointCloud2'
 

@@ -24,10 +24,10 @@ from grass_nrsfm_ros import bag
 from grass_nrsfm_ros.cli import UserError
 from grass_nrsfm_ros.cloud import CloudError, decode_tracks
 from grass_nrsfm_ros.commands.npz import complete_tracks, load_tracks
+from grass_nrsfm_ros.live import make_pipeline
 from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM
 from grass_nrsfm_ros.nrsfm.measurement import validate_shapes
 from grass_nrsfm_ros.params import load_config, solver_kwargs
-from grass_nrsfm_ros.pipeline import make_pipeline
 
 
 def add_arguments(parser):
@@ -126,6 +126,7 @@ class ReconstructionReport:
     out_path: Path
     frames_in: int = 0
     frames_out: int = 0
+    frames_refined: int = 0
     windows: int = 0
     refused: list = field(default_factory=list)      # one line per refused frame or window
     copied: Counter = field(default_factory=Counter)  # input topic -> messages copied
@@ -152,18 +153,21 @@ def text_progress(stream=None, width=30):
 
 
 def reconstruct_bag(in_path, out_path, pipeline, *, topic=bag.TRACKS_TOPIC,
-                    points_topic=bag.POINTS_TOPIC, copy_inputs=True, progress=None,
-                    skip_errors=(ValueError,)):
-    """Run the windowed pipeline over a tracks bag offline, as fast as the solver goes, and
-    write a bag at ``out_path`` with ``points_topic`` (one cloud per reconstructed frame,
-    stamped with the frame's stamp, logged at its tracks' receive time) and, with
+                    points_topic=bag.POINTS_TOPIC, refined_topic=bag.REFINED_TOPIC,
+                    copy_inputs=True, progress=None, skip_errors=(ValueError,)):
+    """Run the pipeline over a tracks bag offline, each window solved as it closes (so the
+    output is reproducible), as fast as the solver goes, and write a bag at ``out_path`` with
+    ``points_topic`` (one cloud per frame as tracked on arrival, or as its window published it
+    with ``output='windows'``), ``refined_topic`` (each frame once its window is solved), both
+    stamped with the frame's stamp and logged at its tracks' receive time, and, with
     ``copy_inputs``, every input message (CDR as recorded; for a ROS 1 source only the tracks,
     re-encoded).
 
-    ``pipeline`` is a :class:`grass_nrsfm_ros.pipeline.SlidingWindow` (or anything with
-    ``add_frame(stamp_ns, ids, uv, frame_id) -> [window]``, ``solve(window) -> [result]`` and
-    ``flush() -> [window]``; results have ``stamp_ns, frame_id, ids: (P,), xyz: (P, 3)``).
-    Frames and windows that raise one of ``skip_errors`` are refused and listed in the report.
+    ``pipeline`` is a :class:`grass_nrsfm_ros.live.LivePipeline` (or anything with
+    ``add_frame(stamp_ns, ids, uv, frame_id) -> Step``, ``solve(window) -> Step`` and
+    ``flush() -> [window]``; a Step's ``points`` and ``refined`` results have ``stamp_ns,
+    frame_id, ids: (P,), xyz: (P, 3)``, its ``windows`` are to solve). Frames and windows
+    that raise one of ``skip_errors`` are refused and listed in the report.
     ``progress(done, total)`` is called after every input frame. Returns a
     :class:`ReconstructionReport`.
     """
@@ -178,11 +182,14 @@ def reconstruct_bag(in_path, out_path, pipeline, *, topic=bag.TRACKS_TOPIC,
             for c in conns:
                 out.add_topic(c.topic, c.msgtype, definition=bag.definition_of(c))
 
-        def emit(results):
-            for r in results:
-                out.write_points(np.asarray(r.xyz), np.asarray(r.ids), r.stamp_ns, r.frame_id,
-                                 topic=points_topic, t_ns=received.get(r.stamp_ns, r.stamp_ns))
-                report.frames_out += 1
+        def emit(step):
+            for results, name in ((step.points, points_topic), (step.refined, refined_topic)):
+                for r in results:
+                    out.write_points(np.asarray(r.xyz), np.asarray(r.ids), r.stamp_ns,
+                                     r.frame_id, topic=name,
+                                     t_ns=received.get(r.stamp_ns, r.stamp_ns))
+            report.frames_out += len(step.points)
+            report.frames_refined += len(step.refined)
 
         def solve(windows):
             for window in windows:
@@ -210,7 +217,9 @@ def reconstruct_bag(in_path, out_path, pipeline, *, topic=bag.TRACKS_TOPIC,
             try:
                 tracks = decode_tracks(msg)
                 received.setdefault(stamp, t_ns)
-                solve(pipeline.add_frame(stamp, tracks.ids, tracks.uv, msg.header.frame_id))
+                step = pipeline.add_frame(stamp, tracks.ids, tracks.uv, msg.header.frame_id)
+                emit(step)
+                solve(step.windows)
             except (CloudError, *skip_errors) as exc:
                 report.refused.append(f'frame {report.frames_in - 1} (stamp {stamp}): {exc}')
             if progress is not None:

@@ -1,0 +1,216 @@
+"""Live output (tracking on arrival, windows refining behind it) against the sliding windows.
+
+* offline accuracy (no ROS): the streaming bench's sequences plus a 300-frame slow face (its
+  head turn spans the whole sequence), run through :class:`~grass_nrsfm_ros.live.LivePipeline`
+  with each window solved as it closes: e3D of ``points`` (every frame as tracked on arrival,
+  the bootstrap frames included) and of ``points/refined``, against today's windows
+  (``output='windows'``, every track solved, the same SlidingWindow otherwise); mapping CPU
+  seconds per window, frames before the first model;
+* the node (``--node``): the slow face at 30 Hz over DDS into the node as shipped, optionally
+  with the other core busy: frames back, latency from sending a frame's tracks to receiving
+  its cloud (p50 / p95 / max), e3D of the received clouds on all frames.
+
+    python -m bench --only live [--full]
+    python -m bench.live --node [--points 10000] [--busy]
+
+Results: ``bench/results/live.json`` (suite) and ``live_node.json`` (``--node``).
+"""
+import argparse
+import json
+import multiprocessing
+import os
+from pathlib import Path
+import random
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+from grass_nrsfm_ros import cloud
+from grass_nrsfm_ros.live import LivePipeline, reconstruct_live
+from grass_nrsfm_ros.nrsfm.faces import make_face_sequence
+from grass_nrsfm_ros.nrsfm.measurement import as_frames
+from grass_nrsfm_ros.nrsfm.metrics import e3d
+from grass_nrsfm_ros.params import defaults
+from grass_nrsfm_ros.pipeline import default_solver_factory, SlidingWindow
+from . import common
+from .streaming import accuracy_sequences
+
+SLOW_FACE = 'slow_face300'
+NODE_LAUNCH = 'import sys; from grass_nrsfm_ros.node import main; sys.exit(main())'
+
+
+def slow_face(P):
+    """``(W, S)`` of a 300-frame dense face whose head turn spans the whole sequence (pixels:
+    the face's mm), or None without the face model."""
+    try:
+        seq = make_face_sequence(n_frames=300, n_points=P, seed=0)
+    except FileNotFoundError:
+        return None
+    return seq.W, seq.S
+
+
+class CPUTimed:
+    """A solver factory whose fits record their CPU seconds in ``seconds``."""
+
+    def __init__(self, factory):
+        self.factory, self.seconds = factory, []
+
+    def __call__(self):
+        inner, seconds = self.factory(), self.seconds
+
+        class Fit:
+            def fit(self, W, init=None, progress=None):
+                start = time.process_time()
+                result = inner.fit(W, init=init)
+                seconds.append(time.process_time() - start)
+                return result
+        return Fit()
+
+
+def run_pipeline(W, output, mapping_tracks):
+    """``(points, refined, pipeline, solver CPU seconds per window)`` of ``W: (2F, P)``."""
+    F, P = W.shape[0] // 2, W.shape[1]
+    ids = np.arange(P, dtype=np.uint32)
+    timed = CPUTimed(default_solver_factory())
+    pipe = LivePipeline(SlidingWindow(timed, mapping_tracks=mapping_tracks), output=output)
+    points, refined = reconstruct_live(pipe, np.arange(F),
+                                       [(ids, uv.T) for uv in as_frames(W, 2)])
+    assert [r.stamp_ns for r in points] == list(range(F)), 'every frame published once'
+    return points, refined, pipe, timed.seconds
+
+
+def stacked(results):
+    return np.vstack([r.xyz.T for r in results])
+
+
+def compare(name, W, S, mapping_tracks):
+    """One row: live points / refined vs today's windows, mapping CPU per window."""
+    points, refined, live, cpu = run_pipeline(W, 'live', mapping_tracks)
+    windows, _, _, cpu_windows = run_pipeline(W, 'windows', 0)
+    per_frame = e3d(stacked(points), S, per_frame=True)
+    windows_per_frame = e3d(stacked(windows), S, per_frame=True)
+    first = live.stats['first_model_after']
+    row = {'sequence': name, 'F': W.shape[0] // 2, 'P': W.shape[1],
+           'e3d_points': float(per_frame.mean()),
+           'e3d_points_after_first_model': float(per_frame[first:].mean()),
+           'e3d_windows_after_first_model': float(windows_per_frame[first:].mean()),
+           'e3d_refined': e3d(stacked(refined), S), 'e3d_windows': e3d(stacked(windows), S),
+           'first_model_after_frames': first, 'fresh_windows': live.stats['fresh_windows'],
+           'tracking_ms_p50': 1e3 * live.latency_percentiles()[0],
+           'tracking_ms_p95': 1e3 * live.latency_percentiles()[1],
+           'mapping_cpu_per_window_s': float(np.mean(cpu[1:] or cpu)),
+           'windows_cpu_per_window_s': float(np.mean(cpu_windows[1:] or cpu_windows))}
+    common.log(f"{name:>16} e3D points {row['e3d_points']:.4f} refined {row['e3d_refined']:.4f}"
+               f" windows {row['e3d_windows']:.4f}  CPU/window "
+               f"{row['mapping_cpu_per_window_s']:.2f} vs {row['windows_cpu_per_window_s']:.2f} s"
+               f'  first model after {first}')
+    return row
+
+
+def run(mode):
+    mapping_tracks = defaults()['mapping_tracks']
+    sequences = accuracy_sequences(mode)
+    face = slow_face(mode.pick(300, 3000, 10000))
+    if face is not None and mode.name != 'smoke':
+        sequences.append((SLOW_FACE, *face))
+    rows, skipped = [], []
+    for name, W, S in sequences:
+        try:
+            rows.append(compare(name, W, S, mapping_tracks))
+        except Exception as exc:
+            skipped.append({'sequence': name, 'why': f'{type(exc).__name__}: {exc}'})
+    ratios = [r['e3d_points'] / r['e3d_windows'] for r in rows if r['sequence'] != SLOW_FACE]
+    summary = {'geometric_mean_points_over_windows': float(np.exp(np.mean(np.log(ratios))))
+               if ratios else None,
+               'worst_points_over_windows': max(ratios) if ratios else None}
+    return {'rows': rows, 'skipped': skipped, 'summary': summary,
+            'mapping_tracks': mapping_tracks}
+
+
+# -- the node over DDS ----------------------------------------------------------------------------
+def busy_loop(stop):
+    """Keep one core busy until ``stop`` is set (the 'other core busy' condition)."""
+    x = 0.0
+    while not stop.is_set():
+        x = (x + 1.0) % 7.0
+
+
+def node_run(points=10_000, rate=30.0, busy=False, extra_args=()):
+    """Feed the slow face at ``rate`` Hz into the node; return the figures."""
+    sys.path.insert(0, str(common.REPO / 'test'))
+    tmp = Path(tempfile.mkdtemp(prefix='grass_live_'))
+    os.environ.update({'ROS_DOMAIN_ID': str(random.randint(0, 101)),
+                       'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
+                       'ROS_LOG_DIR': str(tmp / 'log')})
+    env = {**os.environ, 'PYTHONPATH': os.pathsep.join([str(common.REPO),
+                                                        str(common.REPO / 'test')])}
+    import rosutil
+    from std_msgs.msg import Header
+
+    W, S = slow_face(points)
+    F = W.shape[0] // 2
+    ids = np.arange(points, dtype=np.uint32)
+    t0 = 1_700_000_000_000_000_000
+    period = 1.0 / rate
+    messages = [cloud.encode_tracks(ids, uv.T, Header(frame_id='camera'))
+                for uv in as_frames(W, 2)]
+    for f, msg in enumerate(messages):
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(t0 + int(f * period * 1e9),
+                                                                10 ** 9)
+    stop = multiprocessing.Event()
+    hog = multiprocessing.Process(target=busy_loop, args=(stop,), daemon=True) if busy else None
+    if hog:
+        hog.start()
+    try:
+        with rosutil.node_with_feeder(env, tmp / 'node.log', list(extra_args),
+                                      launch=NODE_LAUNCH, points_depth=F) as (_, feeder):
+            start = time.monotonic()
+            for f, msg in enumerate(messages):
+                time.sleep(max(0.0, start + f * period - time.monotonic()))
+                feeder.publish(msg)
+            feeder.wait_for(lambda: len(feeder.points) >= F, 30)
+            received = {m.header.stamp.sec * 10 ** 9 + m.header.stamp.nanosec: m
+                        for m in feeder.points}
+            latencies = np.array(feeder.latencies)
+            values = feeder.diagnostic_values()
+    finally:
+        stop.set()
+        if hog:
+            hog.join()
+    stamps = [t0 + int(f * period * 1e9) for f in range(F)]
+    got = [f for f, s in enumerate(stamps) if s in received]
+    est = np.vstack([cloud.decode_points(received[stamps[f]])[1].T for f in got])
+    gt = np.vstack([as_frames(S, 3)[f] for f in got])
+    figures = {'points': points, 'rate': rate, 'frames': F, 'busy_core': busy,
+               'frames_received': len(got), 'share_received': len(got) / F,
+               'latency_ms_p50': 1e3 * float(np.percentile(latencies, 50)),
+               'latency_ms_p95': 1e3 * float(np.percentile(latencies, 95)),
+               'latency_ms_max': 1e3 * float(latencies.max()),
+               'e3d_received': e3d(est, gt), 'diagnostics': values}
+    common.log(json.dumps({k: v for k, v in figures.items() if k != 'diagnostics'}))
+    return figures
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    parser.add_argument('--node', action='store_true', help='the node over DDS (else offline)')
+    parser.add_argument('--points', type=int, default=10_000)
+    parser.add_argument('--rate', type=float, default=30.0)
+    parser.add_argument('--busy', action='store_true', help='keep the other core busy')
+    args = parser.parse_args(argv)
+    if not args.node:
+        from . import __main__
+        return __main__.main(['--only', 'live'])
+    figures = node_run(args.points, args.rate, args.busy)
+    path = common.RESULTS / 'live_node.json'
+    old = json.loads(path.read_text()) if path.exists() else {}
+    old[f"{args.points}{'_busy' if args.busy else ''}"] = {
+        'environment': common.environment(), **common.jsonable(figures)}
+    path.write_text(json.dumps(old, indent=1, sort_keys=True) + '\n')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,230 @@
+"""Live tracking: nrsfm.tracking against exact models, and LivePipeline (tracking + mapping)
+against a real rigid solver and the Grassmannian one."""
+import numpy as np
+import pytest
+
+from doubles import bending_sheet as make_sequence, RigidALS, RigidWarmStart
+from grass_nrsfm_ros.live import LivePipeline, reconstruct_live
+from grass_nrsfm_ros.nrsfm import tracking
+from grass_nrsfm_ros.nrsfm.measurement import as_frames
+from grass_nrsfm_ros.nrsfm.metrics import e3d
+from grass_nrsfm_ros.nrsfm.synthetic import make_sequence as make_surface
+from grass_nrsfm_ros.pipeline import reconstruct_sequence, SlidingWindow
+
+
+def random_rotation(rng):
+    return tracking.nearest_rotation(rng.standard_normal((3, 3)))
+
+
+def low_rank_sequence(F=40, P=300, rank=2, seed=0):
+    """World shapes ``mean + sum_k c_fk B_k`` seen by rotating cameras: ``(X: (F, 3, P),
+    R: (F, 3, 3))``, all exact."""
+    rng = np.random.default_rng(seed)
+    mean = rng.standard_normal((3, P)) * np.array([[1.0], [0.8], [0.5]])
+    modes = 0.2 * rng.standard_normal((rank, 3, P))
+    c = np.sin(np.outer(np.linspace(0, 3, F), np.arange(1, rank + 1)))
+    X = mean + np.einsum('fk,kdp->fdp', c, modes)
+    X -= X.mean(axis=2, keepdims=True)
+    t = np.linspace(0, 1, F)
+    R = tracking.rodrigues(np.stack([0.5 * np.sin(3 * t), 0.6 * t, 0.2 * np.cos(2 * t)], 1))
+    return X, R
+
+
+def test_fit_rotation_recovers_the_orthographic_rotation_not_the_svd_shortcut():
+    rng = np.random.default_rng(1)
+    X = rng.standard_normal((3, 200)) * np.array([[1.0], [1.0], [0.3]])
+    X -= X.mean(axis=1, keepdims=True)
+    R_true = random_rotation(rng)
+    w = (R_true @ X)[:2]
+    start = tracking.rodrigues(np.array([0.1, -0.15, 0.05])) @ R_true
+    R = tracking.fit_rotation(w, X, start, steps=8)
+    assert np.abs(R - R_true).max() < 1e-8
+    # the shortcut (Procrustes of w against X's x, y rows) is far from it
+    U, _, Vt = np.linalg.svd(w @ X[:2].T)
+    assert np.abs(U @ Vt - R_true[:2, :2]).max() > 1e-2
+
+
+def test_tracking_an_exact_low_rank_sequence_reproduces_its_shapes():
+    X, R = low_rank_sequence()
+    F, _, P = X.shape
+    S = R @ X
+    ids = np.arange(P, dtype=np.uint32) + 7
+    model = tracking.build_model(S[:20].reshape(60, P), R[:20], ids, np.arange(20))
+    assert model.rank == 2
+    tracker = tracking.Tracker(model, noise_share=0.0)     # exact: no prior
+    for f in range(20, F):
+        out = tracker.track(f, ids, S[f, :2].T + 50.0)
+        assert out.residual < 1e-6
+        np.testing.assert_allclose(out.xyz[:, 2], S[f, 2] - S[f, 2].mean(), atol=1e-6)
+
+
+def test_new_tracks_take_their_neighbours_depth_and_gone_tracks_are_absent():
+    X, R = low_rank_sequence(P=400)
+    S = R @ X
+    ids = np.arange(400, dtype=np.uint32)
+    model_ids = ids[:300]                               # tracks 300..399 unknown to the model
+    model = tracking.build_model(S[:20, :, :300].reshape(60, 300), R[:20], model_ids,
+                                 np.arange(20))
+    tracker = tracking.Tracker(model, noise_share=0.0)     # exact: no prior
+    present = np.r_[np.arange(10, 300), np.arange(300, 400)]        # 0..9 gone, 100 new
+    f = 25
+    out = tracker.track(f, ids[present], S[f, :2][:, present].T)
+    assert out.new_tracks == 100 and list(out.ids) == list(ids[present])
+    known = np.arange(290)                              # depth is centred over all tracks
+    z_true = S[f, 2, present[known]]
+    z_known = out.xyz[known, 2]
+    assert np.abs((z_known - z_known.mean()) - (z_true - z_true.mean())).max() < 1e-6
+    # the cloud is random, so a new track's depth is only checked to be a convex combination
+    # of the known tracks' depths (inverse-distance weights)
+    z = out.xyz[:, 2]
+    assert z[290:].min() >= z[:290].min() - 1e-9 and z[290:].max() <= z[:290].max() + 1e-9
+
+
+def test_a_model_swap_carries_the_rotation_through_the_shared_frames():
+    """The second model's world is the first one's rotated by Q: tracking goes on from the
+    same camera-frame shapes, with no jump."""
+    X, R = low_rank_sequence(F=50, rank=1)
+    F, _, P = X.shape
+    S = R @ X
+    ids = np.arange(P, dtype=np.uint32)
+    first = tracking.build_model(S[:20].reshape(60, P), R[:20], ids, np.arange(20))
+    tracker = tracking.Tracker(first, noise_share=0.0)
+    for f in range(20, 30):
+        tracker.track(f, ids, S[f, :2].T)
+    Q = random_rotation(np.random.default_rng(5))
+    second = tracking.build_model(S[10:30].reshape(60, P), R[10:30] @ Q, ids, np.arange(10, 30))
+    tracker.swap(second)
+    for f in range(30, F):
+        out = tracker.track(f, ids, S[f, :2].T)
+        np.testing.assert_allclose(out.xyz[:, 2], S[f, 2] - S[f, 2].mean(), atol=1e-6)
+
+
+# -- LivePipeline -------------------------------------------------------------------------------
+def live(output='live', **window_kwargs):
+    window_kwargs.setdefault('warm_start_class', RigidWarmStart)
+    return LivePipeline(SlidingWindow(RigidALS, **window_kwargs), output=output)
+
+
+def frames_of(W, ids):
+    return [(ids, uv.T) for uv in as_frames(W, 2)]
+
+
+def test_every_frame_is_published_on_arrival_and_refined_once():
+    W, S, ids = make_sequence(F=60, P=150)
+    pipe = live()
+    for f, (fid, uv) in enumerate(frames_of(W, ids)):
+        step = pipe.add_frame(f, fid, uv, 'cam')
+        assert [r.stamp_ns for r in step.points] == [f]          # at once, this frame
+        for window in step.windows:
+            assert pipe.solve(window).points == ()
+    points, refined = reconstruct_live(live(), np.arange(60), frames_of(W, ids))
+    assert [r.stamp_ns for r in points] == list(range(60))
+    assert [r.stamp_ns for r in refined] == list(range(60))
+    assert pipe.stats['first_model_after'] == 30
+
+
+def test_refined_output_is_the_windows_output_and_tracking_follows_the_rigid_model():
+    W, S, ids = make_sequence(F=60, P=150, bend=0.0)                 # rigid: exact for RigidALS
+    points, refined = reconstruct_live(live(), np.arange(60), frames_of(W, ids))
+    windows = reconstruct_sequence(SlidingWindow(RigidALS, warm_start_class=RigidWarmStart),
+                                   np.arange(60), frames_of(W, ids))
+    # the same frames, up to one depth sign for the whole sequence (the first model keeps
+    # the orientation the bootstrap published)
+    sign = np.sign(np.dot(refined[0].xyz[:, 2], windows[0].xyz[:, 2]))
+    for a, b in zip(refined, windows):
+        np.testing.assert_array_equal(a.xyz, b.xyz * [1, 1, sign])
+    tracked = np.vstack([r.xyz.T for r in points[30:]])          # tracks in id order
+    assert e3d(tracked, S[90:, np.argsort(ids)]) < 1e-4
+    only_windows = live('windows')
+    out, none = reconstruct_live(only_windows, np.arange(60), frames_of(W, ids))
+    assert none == [] and all(np.array_equal(a.xyz, b.xyz) for a, b in zip(out, windows))
+
+
+def test_offline_output_is_reproducible():
+    W, S, ids = make_sequence(F=50, P=120, bend=0.1)
+    runs = [reconstruct_live(live(), np.arange(50), frames_of(W, ids)) for _ in range(2)]
+    for a, b in zip(runs[0][0] + runs[0][1], runs[1][0] + runs[1][1]):
+        assert a.stamp_ns == b.stamp_ns
+        np.testing.assert_array_equal(a.xyz, b.xyz)
+
+
+def test_tracks_joining_and_leaving_mid_sequence():
+    W, S, ids = make_sequence(F=60, P=200, bend=0.0)
+    pipe = live()
+    out = []
+    for f, (fid, uv) in enumerate(frames_of(W, ids)):
+        keep = np.arange(200) < 150 if f < 40 else np.arange(200) >= 20     # 20 leave, 50 join
+        step = pipe.add_frame(f, fid[keep], uv[keep])
+        out += step.points
+        for window in step.windows:
+            pipe.solve(window)
+    late = out[45]
+    present = np.flatnonzero(np.arange(200) >= 20)
+    assert sorted(late.ids) == sorted(ids[present])               # the gone ones are absent
+    gt = as_frames(S, 3)[45][:, present[np.argsort(ids[present])]]  # in id order, as published
+    xyz = late.xyz.T
+    joined = np.isin(late.ids, ids[150:])                          # 50 the model lacks
+    assert e3d(xyz[:, ~joined], gt[:, ~joined]) < 1e-3             # rigid: exact where modelled
+    flat = xyz.copy()
+    flat[2, joined] = xyz[2, ~joined].mean()
+    assert e3d(xyz, gt) < 0.5 * e3d(flat, gt)                      # neighbours' depth, not none
+
+
+def test_an_abrupt_change_is_reported_and_asks_for_a_fresh_window():
+    W, S, ids = make_sequence(F=80, P=150, bend=0.0)
+    W2, _, _ = make_sequence(F=80, P=150, bend=0.6, seed=3)      # another surface, same ids
+    W = np.vstack([W[:100], W2[100:]])                             # frames 50.. change
+    pipe = live()
+    residuals = []
+    for f, (fid, uv) in enumerate(frames_of(W, ids)):
+        step = pipe.add_frame(f, ids, uv)
+        residuals.append(pipe.last['residual'])
+        for window in step.windows:
+            pipe.solve(window)
+        if f == 49:
+            assert pipe.stats['fresh_windows'] == 0
+    assert residuals[50] > 10 * np.median(residuals[35:50])
+    assert pipe.stats['fresh_windows'] >= 1
+    assert len(step.points) == 1                                    # still published
+
+
+def test_live_points_follow_the_windows_on_a_deforming_surface():
+    seq = make_surface('bending', n_frames=50, n_points=300, seed=0)
+    ids = np.arange(300, dtype=np.uint32)
+    points, refined = reconstruct_live(LivePipeline(SlidingWindow()), np.arange(50),
+                                       frames_of(seq.W, ids))
+    tracked = e3d(np.vstack([r.xyz.T for r in points[30:]]), seq.S[90:])
+    windows = e3d(np.vstack([r.xyz.T for r in refined[30:]]), seq.S[90:])
+    assert tracked < 1.5 * windows
+    # one depth orientation across model swaps: consecutive tracked frames agree in sign
+    z = np.stack([r.xyz[:, 2] for r in points[30:]])
+    assert (np.einsum('fp,fp->f', z[1:], z[:-1]) > 0).all()
+    # and no jump in depth scale beyond the truth's own change: a swap moves to the newer
+    # model's depth (frame 40, the second model correcting the first: 0.79 of the truth's step)
+    z_gt = as_frames(seq.S, 3)[30:, 2]
+    step = np.linalg.norm(z, axis=1) / np.linalg.norm(z_gt - z_gt.mean(axis=1, keepdims=True),
+                                                      axis=1)
+    step = step[1:] / step[:-1]
+    assert step.max() < 1.3 and step.min() > 0.7, step
+
+
+def test_bad_parameters_are_refused():
+    with pytest.raises(ValueError, match='output'):
+        LivePipeline(SlidingWindow(RigidALS), output='fast')
+    with pytest.raises(ValueError, match='residual_limit'):
+        LivePipeline(SlidingWindow(RigidALS), residual_limit=0.5)
+    with pytest.raises(ValueError, match='mapping_tracks'):
+        SlidingWindow(RigidALS, mapping_tracks=5)
+
+
+def test_mapping_on_a_subset_of_tracks_fills_in_the_rest():
+    seq = make_surface('bending', n_frames=40, n_points=600, seed=1)
+    ids = np.arange(600, dtype=np.uint32)
+    full = reconstruct_sequence(SlidingWindow(), np.arange(40), frames_of(seq.W, ids))
+    cut = SlidingWindow(mapping_tracks=300)
+    part = reconstruct_sequence(cut, np.arange(40), frames_of(seq.W, ids))
+    assert all(r.ids.size == 600 for r in part)
+    e_full = e3d(np.vstack([r.xyz.T for r in full]), seq.S)
+    e_part = e3d(np.vstack([r.xyz.T for r in part]), seq.S)
+    assert e_part < 1.25 * e_full
+    assert cut.previous.report is not None
