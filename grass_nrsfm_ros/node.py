@@ -347,7 +347,7 @@ class ReconstructionNode(Node):
 
     def _on_tracks_raw(self, raw):
         """Record one serialized tracks message (receive time), then decode and handle it."""
-        self._received = time.monotonic()
+        received = time.monotonic()
         self._input_rate.tick()
         if self.recorder is not None:
             if not self._tracks_recorded:
@@ -361,10 +361,12 @@ class ReconstructionNode(Node):
         except Exception as exc:                      # malformed CDR: drop, keep running
             self._counts['messages'] += 1
             return self._drop(None, f'undecodable tracks message ({type(exc).__name__}: {exc})')
-        self._on_tracks(msg)
+        self._on_tracks(msg, received)
 
-    def _on_tracks(self, msg):
-        """Decode one frame, buffer it, hand any closed window to the worker."""
+    def _on_tracks(self, msg, received=None):
+        """Decode one frame, buffer it, publish its tracked cloud, hand any closed window to
+        the mapping. ``received``: ``time.monotonic()`` when the message arrived."""
+        received = received or time.monotonic()
         self._counts['messages'] += 1
         stamp = stamp_ns(msg.header.stamp)
         try:
@@ -387,7 +389,7 @@ class ReconstructionNode(Node):
         for result in step.points:
             self._publish(self.points_pub, result)
         if step.points:
-            self._latencies.append(time.monotonic() - self._received)
+            self._latencies.append(time.monotonic() - received)
         for window in step.windows:
             if self._inline:
                 self._solve_and_publish(window)     # reproducible: as the offline tools
@@ -510,6 +512,7 @@ class ReconstructionNode(Node):
                 'frames not refined': live.windows.stats['frames_lost'],
                 'frames awaiting refinement': live.pending_frames,
                 'fresh windows requested': live.stats['fresh_windows'],
+                'frames not tracked (published flat)': live.stats['tracking_failed'],
                 'first model after frames': '' if live.stats['first_model_after'] is None
                 else live.stats['first_model_after']}
 
