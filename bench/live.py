@@ -35,7 +35,7 @@ from grass_nrsfm_ros.nrsfm.metrics import e3d
 from grass_nrsfm_ros.params import defaults
 from grass_nrsfm_ros.pipeline import default_solver_factory, SlidingWindow
 from . import common
-from .streaming import accuracy_sequences
+from .streaming import accuracy_sequences, Counting
 
 SLOW_FACE = 'slow_face300'
 NODE_LAUNCH = 'import sys; from grass_nrsfm_ros.node import main; sys.exit(main())'
@@ -51,34 +51,16 @@ def slow_face(P):
     return seq.W, seq.S
 
 
-class CPUTimed:
-    """A solver factory whose fits record their CPU seconds in ``seconds``."""
-
-    def __init__(self, factory):
-        self.factory, self.seconds = factory, []
-
-    def __call__(self):
-        inner, seconds = self.factory(), self.seconds
-
-        class Fit:
-            def fit(self, W, init=None, progress=None):
-                start = time.process_time()
-                result = inner.fit(W, init=init)
-                seconds.append(time.process_time() - start)
-                return result
-        return Fit()
-
-
 def run_pipeline(W, output, mapping_tracks):
     """``(points, refined, pipeline, solver CPU seconds per window)`` of ``W: (2F, P)``."""
     F, P = W.shape[0] // 2, W.shape[1]
     ids = np.arange(P, dtype=np.uint32)
-    timed = CPUTimed(default_solver_factory())
-    pipe = LivePipeline(SlidingWindow(timed, mapping_tracks=mapping_tracks), output=output)
+    counting = Counting(default_solver_factory())
+    pipe = LivePipeline(SlidingWindow(counting, mapping_tracks=mapping_tracks), output=output)
     points, refined = reconstruct_live(pipe, np.arange(F),
                                        [(ids, uv.T) for uv in as_frames(W, 2)])
     assert [r.stamp_ns for r in points] == list(range(F)), 'every frame published once'
-    return points, refined, pipe, timed.seconds
+    return points, refined, pipe, [cpu for _, cpu in counting.fits]
 
 
 def stacked(results):

@@ -120,17 +120,6 @@ def streaming_table(doc):
         lines.append(f'| {r["P"]} | {r["solver"]} | {r["window_size"]}/{r["window_stride"]} | '
                      f'{fmt(r["fps"], 1)} | {fmt(r["latency_mean_s"], 2)} | '
                      f'{fmt(r["latency_max_s"], 2)} |')
-    rows = [r for r in doc.get('accuracy', []) if 'e3d_stream_model' in r]
-    if rows:
-        lines += ['', 'Streamed e3D (every frame as published) by `warm_start`, with solver '
-                  'iterations and CPU s per window after the first:', '',
-                  '| sequence | F x P | whole | rigid per window | model (default) | off | full |',
-                  '|---|---|---|---|---|---|---|']
-        for r in rows:
-            cells = [f'{fmt(r[f"e3d_stream_{v}"], 4)} ({r[f"iterations_{v}"]:.0f} it, '
-                     f'{fmt(r[f"cpu_per_window_{v}_s"], 2)} s)' for v in ('model', 'off', 'full')]
-            lines.append(f'| {r["sequence"]} | {r["F"]} x {r["P"]} | {fmt(r["e3d_whole"], 4)} | '
-                         f'{fmt(r["e3d_rigid_per_window"], 4)} | ' + ' | '.join(cells) + ' |')
     return lines
 
 

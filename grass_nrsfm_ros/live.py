@@ -30,6 +30,7 @@ import time
 
 import numpy as np
 
+from grass_nrsfm_ros.nrsfm.measurement import InvalidInputError
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
 from grass_nrsfm_ros.nrsfm.tracking import build_model, Tracker
 from grass_nrsfm_ros.params import OUTPUTS
@@ -67,7 +68,10 @@ def bootstrap_model(frames):
     if len(frames) < BOOTSTRAP_AT[0] or ids.size < 4:
         return None
     W = np.vstack([f.uv[np.searchsorted(f.ids, ids)].T for f in frames])
-    R, S = rigid_factorisation(W)
+    try:
+        R, S = rigid_factorisation(W)
+    except (InvalidInputError, np.linalg.LinAlgError):     # no spread, degenerate frames
+        return None
     Sf = S.reshape(len(frames), 3, -1)
     spread = Sf - Sf.mean(axis=2, keepdims=True)
     depth, image = np.std(spread[:, 2]), np.std(spread[:, :2])
@@ -101,7 +105,7 @@ class LivePipeline:
         self.latencies = deque(maxlen=LATENCY_WINDOW)
         self.last = dict(residual=None, model_age=None, model_rank=None, bootstrap=None)
         self.stats = dict(tracked=0, refined=0, bootstrap_frames=0, fresh_windows=0,
-                          models=0, first_model_after=None)
+                          models=0, first_model_after=None, tracking_failed=0)
 
     # -- tracking -------------------------------------------------------------------------------
     def add_frame(self, stamp_ns, ids, uv, frame_id=''):
@@ -147,7 +151,9 @@ class LivePipeline:
         self.stats['tracked'] += 1
         if not self.has_model:
             return self._track_bootstrap(frame)
-        tracked = self._tracker.track(frame.stamp_ns, frame.ids, frame.uv)
+        tracked = self._fit(frame)
+        if tracked is None:
+            return self._flat(frame)
         self.last.update(residual=tracked.residual, model_rank=self._tracker.model.rank,
                          model_age=self._tracker.age, bootstrap=False)
         if self._surprising(tracked.residual):
@@ -174,15 +180,38 @@ class LivePipeline:
             model = bootstrap_model(self._bootstrap)
             if model is not None:
                 self._tracker = Tracker(model, temporal_prior=self.temporal_prior)
-        if self._tracker is None:
-            xyz = np.column_stack([frame.uv - frame.uv.mean(axis=0), np.zeros(frame.ids.size)])
-            self.last.update(residual=None, model_age=None, model_rank=None, bootstrap=True)
-            return self._result(frame, frame.ids, xyz)
-        tracked = self._tracker.track(frame.stamp_ns, frame.ids, frame.uv)
+        tracked = None if self._tracker is None else self._fit(frame)
+        if tracked is None:
+            return self._flat(frame)
         self.last.update(residual=tracked.residual, model_age=self._tracker.age,
                          model_rank=0, bootstrap=True)
         self._bootstrap_depth[frame.stamp_ns] = (tracked.ids, tracked.xyz[:, 2])
         return self._result(frame, tracked.ids, tracked.xyz)
+
+    def _fit(self, frame):
+        """The tracker's TrackedFrame of ``frame``, or None (counted) where the fit fails or
+        is not finite (degenerate frames: coincident or collinear tracks)."""
+        centred = frame.uv - frame.uv.mean(axis=0)
+        if np.sqrt(np.mean(centred ** 2)) <= 1e-9 * (1.0 + np.abs(frame.uv).max()):
+            self.stats['tracking_failed'] += 1                 # no spread: nothing to fit
+            return None
+        with np.errstate(all='ignore'):
+            try:
+                tracked = self._tracker.track(frame.stamp_ns, frame.ids, frame.uv)
+            except np.linalg.LinAlgError:
+                tracked = None
+        if tracked is None or not (np.isfinite(tracked.xyz).all()
+                                   and np.isfinite(tracked.residual)):
+            self.stats['tracking_failed'] += 1
+            return None
+        return tracked
+
+    def _flat(self, frame):
+        """``frame`` with no depth (z = 0): before any model, or where tracking failed."""
+        xyz = np.column_stack([frame.uv - frame.uv.mean(axis=0), np.zeros(frame.ids.size)])
+        self.last.update(residual=None, model_age=None, model_rank=None,
+                         bootstrap=not self.has_model)
+        return self._result(frame, frame.ids, xyz)
 
     def _result(self, frame, ids, xyz):
         return FrameResult(frame.stamp_ns, frame.frame_id, ids,

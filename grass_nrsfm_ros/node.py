@@ -46,9 +46,13 @@ from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
+from threadpoolctl import threadpool_limits
+from visualization_msgs.msg import Marker
 
 from grass_nrsfm_ros import cloud, mesh, params, qos as offered_qos, rates
+from grass_nrsfm_ros.bag import Recorder
 from grass_nrsfm_ros.live import make_pipeline
+from grass_nrsfm_ros.marker import mesh_marker
 from grass_nrsfm_ros.pipeline import FrameError, WindowError
 
 POINTCLOUD2 = 'sensor_msgs/msg/PointCloud2'
@@ -185,7 +189,6 @@ class ReconstructionNode(Node):
     def _configure_blas(self):
         """Cap BLAS/OpenMP threads at all cores but one, so one stays free for the executor
         (the solver itself runs BLAS on one thread)."""
-        from threadpoolctl import threadpool_limits
         threads = max(1, (os.cpu_count() or 2) - 1)
         self._blas_limits = threadpool_limits(limits=threads)
 
@@ -196,8 +199,6 @@ class ReconstructionNode(Node):
         reconstruction goes on."""
         if not path:
             return None
-        from grass_nrsfm_ros.bag import Recorder
-
         recorder = Recorder(path, on_error=self.get_logger().error)
         self._tracks_recorded = False           # added with its publishers' QoS on 1st message
         for publisher in (self.points_pub, self.refined_pub):
@@ -290,16 +291,12 @@ class ReconstructionNode(Node):
         self._mesh = mesh.MeshCache(config['mesh_max_edge'])
         self.mesh_pub = None
         if config['publish_mesh']:
-            from visualization_msgs.msg import Marker
-
             self.mesh_pub = self.create_publisher(
                 Marker, 'mesh', QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE))
 
     def _publish_mesh(self, result):
         """The surface of one published frame: triangles on its track set's first frame in the
         image plane (its x, y are the frame's centred u, v times metres_per_pixel)."""
-        from grass_nrsfm_ros.marker import mesh_marker
-
         triangles = self._mesh.triangles_for(result.ids, result.xyz[:, :2])
         vertices, colours = mesh.triangle_list(result.xyz, triangles)
         header = Header(stamp=to_stamp(result.stamp_ns),
@@ -350,7 +347,7 @@ class ReconstructionNode(Node):
 
     def _on_tracks_raw(self, raw):
         """Record one serialized tracks message (receive time), then decode and handle it."""
-        self._received = time.monotonic()
+        received = time.monotonic()
         self._input_rate.tick()
         if self.recorder is not None:
             if not self._tracks_recorded:
@@ -364,10 +361,12 @@ class ReconstructionNode(Node):
         except Exception as exc:                      # malformed CDR: drop, keep running
             self._counts['messages'] += 1
             return self._drop(None, f'undecodable tracks message ({type(exc).__name__}: {exc})')
-        self._on_tracks(msg)
+        self._on_tracks(msg, received)
 
-    def _on_tracks(self, msg):
-        """Decode one frame, buffer it, hand any closed window to the worker."""
+    def _on_tracks(self, msg, received=None):
+        """Decode one frame, buffer it, publish its tracked cloud, hand any closed window to
+        the mapping. ``received``: ``time.monotonic()`` when the message arrived."""
+        received = received or time.monotonic()
         self._counts['messages'] += 1
         stamp = stamp_ns(msg.header.stamp)
         try:
@@ -390,7 +389,7 @@ class ReconstructionNode(Node):
         for result in step.points:
             self._publish(self.points_pub, result)
         if step.points:
-            self._latencies.append(time.monotonic() - self._received)
+            self._latencies.append(time.monotonic() - received)
         for window in step.windows:
             if self._inline:
                 self._solve_and_publish(window)     # reproducible: as the offline tools
@@ -513,6 +512,7 @@ class ReconstructionNode(Node):
                 'frames not refined': live.windows.stats['frames_lost'],
                 'frames awaiting refinement': live.pending_frames,
                 'fresh windows requested': live.stats['fresh_windows'],
+                'frames not tracked (published flat)': live.stats['tracking_failed'],
                 'first model after frames': '' if live.stats['first_model_after'] is None
                 else live.stats['first_model_after']}
 

@@ -62,15 +62,20 @@ agree with the previous window on the overlap, so published clouds keep one orie
 from bisect import bisect_left
 from collections import deque
 from dataclasses import dataclass, replace
+import inspect
 import threading
 import time
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from grass_nrsfm_ros import params
 from grass_nrsfm_ros.cloud import strictly_increasing
+from grass_nrsfm_ros.nrsfm import GrassmannNRSfM, WarmStart
 from grass_nrsfm_ros.nrsfm.density import fill_dropped
 from grass_nrsfm_ros.nrsfm.measurement import as_frames, centre
+from grass_nrsfm_ros.nrsfm.rotation import (align_rotations, estimate_rotations,
+                                            rigid_factorisation, rotations_from_rows)
 from grass_nrsfm_ros.params import MIN_WINDOW_FRAMES
 
 #: fewest tracks a window may be solved on when ``mapping_tracks`` caps them
@@ -184,18 +189,8 @@ class Solution:
     residual: float         # ||Wc - x,y rows of S|| / ||Wc||: relative reprojection residual
 
 
-def _warm_start_class():
-    try:
-        from grass_nrsfm_ros.nrsfm import WarmStart
-    except ImportError:
-        return None
-    return WarmStart
-
-
 def _takes_progress(fit):
     """True if ``fit`` accepts a ``progress`` keyword."""
-    import inspect
-
     try:
         params = inspect.signature(fit).parameters
     except (TypeError, ValueError):
@@ -204,9 +199,8 @@ def _takes_progress(fit):
 
 
 def default_solver_factory(**solver_kwargs):
-    """A factory of ``GrassmannNRSfM(**solver_kwargs)`` (imported when first called)."""
+    """A factory of ``GrassmannNRSfM(**solver_kwargs)``."""
     def make():
-        from grass_nrsfm_ros.nrsfm import GrassmannNRSfM
         return GrassmannNRSfM(**solver_kwargs)
     return make
 
@@ -545,9 +539,7 @@ class SlidingWindow:
         'full' and it overlaps the previous solution; otherwise 'off' gives None (the solver's
         own start), 'model' the previous solution's spatial groups and rotation method, 'full'
         its rotations and shapes too (:meth:`_full_warm_start`)."""
-        cls = self._warm_start_class or _warm_start_class()
-        if cls is None:
-            return None
+        cls = self._warm_start_class or WarmStart
         ov = self._overlap(problem)
         if self.warm_start == 'full' and ov is not None:
             return self._full_warm_start(problem, Wc, ov, cls)
@@ -585,7 +577,6 @@ class SlidingWindow:
         donor[tn] = to
         missing = donor < 0
         if missing.any():
-            from scipy.spatial import cKDTree
             tree = cKDTree(p.uv[fo[0]][to])
             new_uv = problem.W.reshape(F, 2, P)[fn[0]].T[missing]     # pixels, same frame
             donor[missing] = to[tree.query(new_uv)[1]]
@@ -627,7 +618,6 @@ class SlidingWindow:
         if self.warm_rotations == 'solver' or known.all():
             return R
         if self.warm_rotations == 'fit':
-            from grass_nrsfm_ros.nrsfm.rotation import rotations_from_rows
             S = S - S.mean(axis=2, keepdims=True)
             X = R.transpose(0, 2, 1) @ S                     # world shapes of the source frames
             M = as_frames(Wc, 2) @ np.linalg.pinv(X)         # (F, 2, 3) camera rows
@@ -636,8 +626,6 @@ class SlidingWindow:
             use = ~known & ok
             out[use] = fitted[use]
             return out
-        from grass_nrsfm_ros.nrsfm.rotation import estimate_rotations
-        from grass_nrsfm_ros.nrsfm.rotation import align_rotations
         est = estimate_rotations(Wc).R
         probe = np.concatenate([est, np.eye(3)[None]])     # the last row yields the global Q
         aligned = align_rotations(probe, np.concatenate([R, np.eye(3)[None]]),
@@ -650,7 +638,6 @@ class SlidingWindow:
     def _rigid_start(W, cls):
         """WarmStart of a problem with no previous solution: the rigid factorisation's rotations
         and camera-frame shape for every frame."""
-        from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
         R, S = rigid_factorisation(W)
         return cls(R=R, S=S, known=np.ones(W.shape[0] // 2, dtype=bool), groups=None)
 

@@ -125,7 +125,9 @@ def test_sigterm_during_a_solve_exits_within_2s_and_finalises_the_recording(
     assert (tmp_path / 'rec' / 'metadata.yaml').exists(), text     # finalised, not recovered
     counts = {t: n for t, (_, n) in bag.topics(tmp_path / 'rec').items()}
     assert sum(n for t, n in counts.items() if t.endswith('/tracks')) == 7
-    assert sum(n for t, n in counts.items() if t.endswith('/points')) == 0
+    # every frame was tracked and published on arrival; the cancelled solve refined none
+    assert sum(n for t, n in counts.items() if t.endswith('/points')) == 7
+    assert sum(n for t, n in counts.items() if t.endswith('/points/refined')) == 0
 
 
 @pytest.mark.ros
@@ -139,10 +141,12 @@ def test_kill_9_during_recording_leaves_a_recoverable_bag(ros_env, tmp_path):
         counts = feeder.accounted(len(messages))
         assert counts is not None, log.read_text()
         published = counts['frames published']
+        refined = int(feeder.diagnostic_values()['frames refined'])
         assert published > 0 and feeder.wait_for(lambda: len(feeder.points) == published, 10)
         # the recorder flushes within its period (1 s) but says so to no one: poll the file
-        assert feeder.wait_for(lambda: messages_on_disk(tmp_path / 'rec') == 90 + published,
-                               10), messages_on_disk(tmp_path / 'rec')
+        assert feeder.wait_for(
+            lambda: messages_on_disk(tmp_path / 'rec') == 90 + published + refined, 10), \
+            messages_on_disk(tmp_path / 'rec')
         proc.send_signal(signal.SIGKILL)
         proc.wait(10)
     assert not (tmp_path / 'rec' / 'metadata.yaml').exists()
@@ -157,6 +161,7 @@ def test_kill_9_during_recording_leaves_a_recoverable_bag(ros_env, tmp_path):
            recovered_tracks=tracks, recovered_points=points)
     assert tracks == len(messages)        # everything was flushed before the kill
     assert points == published
+    assert sum(n for t, n in counts.items() if t.endswith('/points/refined')) == refined
 
 
 # -- the recording target fails ------------------------------------------------------------------

@@ -332,10 +332,10 @@ def test_node_callback_accepts_or_counts_every_hostile_message(node_in_process, 
     node = node_in_process
     msg.header.stamp.sec = 1000 + seconds
     before = (node._counts['messages'], node._counts['dropped_messages'],
-              node.pipeline.stats['frames'])
+              node.pipeline.windows.stats['frames'])
     node._on_tracks(msg)
     after = (node._counts['messages'], node._counts['dropped_messages'],
-             node.pipeline.stats['frames'])
+             node.pipeline.windows.stats['frames'])
     assert after[0] == before[0] + 1
     assert (after[1] - before[1]) + (after[2] - before[2]) == 1
     FIGURES_NODE['tried'] += 1

@@ -228,3 +228,17 @@ def test_mapping_on_a_subset_of_tracks_fills_in_the_rest():
     e_part = e3d(np.vstack([r.xyz.T for r in part]), seq.S)
     assert e_part < 1.25 * e_full
     assert cut.previous.report is not None
+
+
+def test_a_degenerate_frame_goes_out_flat_and_is_counted():
+    W, S, ids = make_sequence(F=40, P=100, bend=0.0)
+    pipe = live()
+    for f, (fid, uv) in enumerate(frames_of(W, ids)):
+        step = pipe.add_frame(f, fid, uv)
+        for window in step.windows:
+            pipe.solve(window)
+    assert pipe.has_model and pipe.stats['tracking_failed'] == 0
+    step = pipe.add_frame(40, ids, np.full((100, 2), 7.0))         # every track coincides
+    (result,) = step.points
+    assert pipe.stats['tracking_failed'] == 1
+    assert np.array_equal(result.xyz, np.zeros((100, 3)))
