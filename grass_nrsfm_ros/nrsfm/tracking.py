@@ -204,16 +204,22 @@ class Tracker:
     def track(self, stamp_ns, ids, uv):
         """TrackedFrame of one frame: ``ids: (P,)`` sorted unique, ``uv: (P, 2)``."""
         model = self.model
-        _, cols, known = np.intersect1d(model.ids, ids, assume_unique=True,
-                                        return_indices=True)
+        if np.array_equal(model.ids, ids):          # the usual case: no copy of the model
+            cols = known = np.arange(ids.size)
+            mean, modes = model.mean, model.modes
+        else:
+            _, cols, known = np.intersect1d(model.ids, ids, assume_unique=True,
+                                            return_indices=True)
+            mean, modes = model.mean[:, cols], model.modes[:, :, cols]
         w_all = uv.T - uv.mean(axis=0)[:, None]                  # (2, P)
-        fit = fit_subset(cols.size)
-        R, c, _ = fit_frame(*centred(w_all[:, known[fit]], model.mean[:, cols[fit]],
-                                     model.modes[:, :, cols[fit]]),
+        fit = fit_subset(known.size)
+        R, c, _ = fit_frame(*centred(w_all[:, known[fit]], mean[:, fit], modes[:, :, fit]),
                             self.R, self.c, self.temporal_prior,
                             variances=model.variances, noise_share=self.noise_share)
-        w, mean, modes = centred(w_all[:, known], model.mean[:, cols], model.modes[:, :, cols])
-        Y = R @ (mean + np.tensordot(c, modes, axes=1))
+        w = w_all[:, known]
+        w = w - w.mean(axis=1, keepdims=True)
+        X = mean + np.tensordot(c, modes, axes=1)                # centring X = centring both
+        Y = R @ (X - X.mean(axis=1, keepdims=True))
         residual = float(np.linalg.norm(w - Y[:2]) / max(np.linalg.norm(w), 1e-300))
         z = np.empty(ids.size)
         z[known] = Y[2]
