@@ -1,5 +1,5 @@
-"""SlidingWindow: the one windowed reconstruction pipeline, shared by the ROS node and the
-offline bag tools. Pure Python and numpy: no ROS import.
+"""SlidingWindow: the windowed reconstruction under :mod:`grass_nrsfm_ros.live` (the mapping
+of the node and of the offline bag tools). Pure Python and numpy: no ROS import.
 
 Frames go in one at a time (``add_frame(stamp_ns, ids, uv, frame_id)``: ``ids: (P,)`` track
 ids, ``uv: (P, 2)`` pixels); every ``window_stride`` frames (the first time after
@@ -27,34 +27,21 @@ Policies (the node reports each as it happens):
   solved windows are counted in ``stats['frames_lost']``.
 
 Context: each window is solved together with up to ``context_frames`` (60) earlier frames and
-``key_frames`` (30) older ones spread evenly over the sequence (KeyFrames), so the shape prior
-and the rotation estimate see more than the window; a window alone (the first of a sequence)
-starts from the rigid factorisation: 30 frames hold too little rotation for the nuclear norm to
-create depth from scratch (dense face, 60 frames: first window from scratch e3D 0.225, rigid
-0.116, solver started from rigid 0.109).
+``key_frames`` (30) older ones spread evenly over the sequence (KeyFrames); a window alone (the
+first of a sequence) starts from the rigid factorisation (docs/decisions/0035, 0036).
+``mapping_tracks`` caps the tracks a window is solved on, the rest filled in (0403).
 
-Warm start (``warm_start``), what a solve takes from the previous window's solution:
+Warm start (``warm_start``), what a solve takes from the previous window's solution
+(docs/decisions/0037, 0038):
 
 * ``'model'`` (default): the spatial groups of the overlapping tracks (new tracks take their
   nearest old track's) and the rotation method the solver's check chose (Dai's or rigid),
   carried until the frames new since that check reach RECHECK_SHARE of the frames it was made
-  on. Rotations are re-estimated over the whole problem and shapes start from the solver's own
-  start. The groups replace k-means++, the carried method skips the check's two small solves.
+  on; rotations are re-estimated over the whole problem, shapes start from the solver's own.
 * ``'full'``: also the rotations of the overlapping frames (fixed) and their camera-frame
-  shapes (:meth:`SlidingWindow._full_warm_start`); fewer iterations (84 vs 101 on a bending
-  window) but it keeps the earlier windows' errors.
+  shapes (:meth:`SlidingWindow._full_warm_start`).
 * ``'off'``: every window with context from the solver's own start.
 
-Why not carry rotations and shapes by default (streamed e3D, window 30 / stride 10, context 60,
-key frames 30; 'off' first): rotations of overlapping frames kept fixed mix estimates from
-different windows (Dai's factorisation differs per window by more than a world rotation):
-carried from the first full-context window on, with shapes from the solver's start, pickup
-0.036 -> 0.065 (Torresani face 0.060 -> 0.059, shark 0.131 -> 0.114); shapes carried under
-fresh rotations lose the nuclear norm's continuation from a small beta (pickup 0.039, Torresani
-face 0.072); 'full' from the first full-context window on, Torresani face 0.063. Carrying Dai's
-rank K kept the accuracy (pickup 0.035, face 0.058) but saves nothing: the nested rank search
-still runs every rank up to K (and K still grows with the frames: pickup 5 -> 6). Measured for
-'model' against 'off': README (streaming) and bench/results/streaming.json.
 Alignment: a window's camera-frame shapes are defined up to the sign of depth (the orthographic
 reflection) and a depth offset; each window's depth is centred per frame and its sign chosen to
 agree with the previous window on the overlap, so published clouds keep one orientation.
