@@ -34,7 +34,7 @@ from grass_nrsfm_ros.nrsfm.measurement import InvalidInputError
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
 from grass_nrsfm_ros.nrsfm.tracking import build_model, Tracker
 from grass_nrsfm_ros.params import OUTPUTS
-from grass_nrsfm_ros.pipeline import FrameResult, make_windows
+from grass_nrsfm_ros.pipeline import common_ids, DEPTH_FLIP, FrameResult, make_windows
 
 #: a bootstrap model is rebuilt from the frames so far when their count reaches each of these
 BOOTSTRAP_AT = (3, 6, 12, 24, 48)
@@ -45,7 +45,6 @@ BOOTSTRAP_DEPTH_LIMIT = 1.0
 LATENCY_WINDOW = 300
 #: tracked frames whose median residual a new frame's is compared with
 RESIDUAL_BASELINE = 30
-DEPTH_SIGN = np.array([1.0, 1.0, -1.0])
 
 
 @dataclass(frozen=True)
@@ -64,7 +63,7 @@ def bootstrap_model(frames):
     depth is ill-posed (spread beyond BOOTSTRAP_DEPTH_LIMIT times the image spread)."""
     ids = frames[0].ids
     for f in frames[1:]:
-        ids = np.intersect1d(ids, f.ids, assume_unique=True)
+        ids = common_ids(ids, f.ids)
     if len(frames) < BOOTSTRAP_AT[0] or ids.size < 4:
         return None
     W = np.vstack([f.uv[np.searchsorted(f.ids, ids)].T for f in frames])
@@ -118,8 +117,7 @@ class LivePipeline:
         frame = self.windows.newest
         if self.windows.sequence != self._sequence:               # a new sequence
             self._sequence = self.windows.sequence
-            self._tracker, self._bootstrap, self._bootstrap_depth = None, [], {}
-            self._residuals.clear()
+            self._forget_model()
         self._take_model()
         result = self._track(frame)
         self.latencies.append(time.perf_counter() - started)
@@ -228,7 +226,7 @@ class LivePipeline:
         solution = self.windows.previous
         if self._disagrees_with_bootstrap(solution):
             self.windows.flip_previous()
-            results = [FrameResult(r.stamp_ns, r.frame_id, r.ids, r.xyz * DEPTH_SIGN)
+            results = [FrameResult(r.stamp_ns, r.frame_id, r.ids, r.xyz @ DEPTH_FLIP)
                        for r in results]
         model = build_model(solution.S, solution.R, solution.ids, solution.stamps)
         with self._lock:
@@ -261,9 +259,13 @@ class LivePipeline:
         had_model = self._tracker is not None
         with self._lock:
             self._waiting = None
+        self._forget_model()
+        return {**dropped, 'model': dropped['model'] or had_model}
+
+    def _forget_model(self):
+        """No tracker, bootstrap or residual history: a sequence starts over."""
         self._tracker, self._bootstrap, self._bootstrap_depth = None, [], {}
         self._residuals.clear()
-        return {**dropped, 'model': dropped['model'] or had_model}
 
     def flush(self):
         """The last window of the buffered frames (SlidingWindow.flush)."""

@@ -2,6 +2,7 @@
 against a real rigid solver and the Grassmannian one."""
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from doubles import bending_sheet as make_sequence, RigidALS, RigidWarmStart
 from grass_nrsfm_ros.live import LivePipeline, reconstruct_live
@@ -13,7 +14,7 @@ from grass_nrsfm_ros.pipeline import reconstruct_sequence, SlidingWindow
 
 
 def random_rotation(rng):
-    return tracking.nearest_rotation(rng.standard_normal((3, 3)))
+    return Rotation.random(random_state=rng).as_matrix()
 
 
 def low_rank_sequence(F=40, P=300, rank=2, seed=0):
@@ -26,7 +27,8 @@ def low_rank_sequence(F=40, P=300, rank=2, seed=0):
     X = mean + np.einsum('fk,kdp->fdp', c, modes)
     X -= X.mean(axis=2, keepdims=True)
     t = np.linspace(0, 1, F)
-    R = tracking.rodrigues(np.stack([0.5 * np.sin(3 * t), 0.6 * t, 0.2 * np.cos(2 * t)], 1))
+    R = Rotation.from_rotvec(np.stack([0.5 * np.sin(3 * t), 0.6 * t, 0.2 * np.cos(2 * t)],
+                                      1)).as_matrix()
     return X, R
 
 
@@ -36,7 +38,7 @@ def test_fit_rotation_recovers_the_orthographic_rotation_not_the_svd_shortcut():
     X -= X.mean(axis=1, keepdims=True)
     R_true = random_rotation(rng)
     w = (R_true @ X)[:2]
-    start = tracking.rodrigues(np.array([0.1, -0.15, 0.05])) @ R_true
+    start = Rotation.from_rotvec([0.1, -0.15, 0.05]).as_matrix() @ R_true
     R = tracking.fit_rotation(w, X, start, steps=8)
     assert np.abs(R - R_true).max() < 1e-8
     # the shortcut (Procrustes of w against X's x, y rows) is far from it

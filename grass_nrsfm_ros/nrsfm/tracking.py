@@ -30,6 +30,9 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from .measurement import nearest_rotation
 
 #: modes kept: the fewest whose energy reaches this share of the deviations' energy
 MODE_ENERGY = 0.9999
@@ -112,25 +115,6 @@ def mode_variances(s, rank, F, P):
     return np.maximum(lam[:rank] - rest, floor)
 
 
-def rodrigues(v):
-    """Rotation matrices ``(..., 3, 3)`` of axis-angle vectors ``v: (..., 3)``."""
-    theta = np.linalg.norm(v, axis=-1)[..., None, None]
-    K = np.zeros(v.shape[:-1] + (3, 3))
-    K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
-    K = K - np.swapaxes(K, -1, -2)
-    small = theta < 1e-8
-    a = np.where(small, 1.0, np.sin(theta) / np.where(small, 1.0, theta))
-    b = np.where(small, 0.5, (1 - np.cos(theta)) / np.where(small, 1.0, theta ** 2))
-    return np.eye(3) + a * K + b * (K @ K)
-
-
-def nearest_rotation(M):
-    """The rotation ``(3, 3)`` nearest to ``M: (3, 3)`` (Frobenius)."""
-    U, _, Vt = np.linalg.svd(M)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    return U @ D @ Vt
-
-
 def fit_rotation(w, X, R, steps=GN_STEPS):
     """Rotation ``(3, 3)`` minimising ``||w - (R X)[:2]||`` by Gauss-Newton on so(3) from
     ``R``; ``w: (2, P)``, ``X: (3, P)``, both centred."""
@@ -143,7 +127,7 @@ def fit_rotation(w, X, R, steps=GN_STEPS):
         H = Jx.T @ Jx + Jy.T @ Jy
         g = Jx.T @ e[0] + Jy.T @ e[1]
         H[np.diag_indices(3)] += 1e-9 * np.trace(H) + 1e-300
-        R = rodrigues(np.linalg.solve(H, g)) @ R
+        R = Rotation.from_rotvec(np.linalg.solve(H, g)).as_matrix() @ R
     return R
 
 
