@@ -29,9 +29,11 @@ import threading
 import time
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from grass_nrsfm_ros.nrsfm.measurement import InvalidInputError
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
+from grass_nrsfm_ros.nrsfm.solver import BLAS_THREADS
 from grass_nrsfm_ros.nrsfm.tracking import build_model, Tracker
 from grass_nrsfm_ros.params import OUTPUTS
 from grass_nrsfm_ros.pipeline import common_ids, DEPTH_FLIP, FrameResult, make_windows
@@ -220,15 +222,16 @@ class LivePipeline:
         """Solve ``window`` (SlidingWindow.solve: raises WindowError); its solution becomes the
         tracker's next model. Returns a Step: the window's frames as ``refined`` (live) or as
         ``points`` (windows)."""
-        results = self.windows.solve(window, progress=progress)
-        if self.output == 'windows':
-            return Step(points=tuple(results))
-        solution = self.windows.previous
-        if self._disagrees_with_bootstrap(solution):
-            self.windows.flip_previous()
-            results = [FrameResult(r.stamp_ns, r.frame_id, r.ids, r.xyz @ DEPTH_FLIP)
-                       for r in results]
-        model = build_model(solution.S, solution.R, solution.ids, solution.stamps)
+        with threadpool_limits(limits=BLAS_THREADS, user_api='blas'):
+            results = self.windows.solve(window, progress=progress)
+            if self.output == 'windows':
+                return Step(points=tuple(results))
+            solution = self.windows.previous
+            if self._disagrees_with_bootstrap(solution):
+                self.windows.flip_previous()
+                results = [FrameResult(r.stamp_ns, r.frame_id, r.ids, r.xyz @ DEPTH_FLIP)
+                           for r in results]
+            model = build_model(solution.S, solution.R, solution.ids, solution.stamps)
         with self._lock:
             self._waiting = (window.sequence, model)
         self.stats['models'] += 1

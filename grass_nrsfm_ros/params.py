@@ -28,7 +28,7 @@ README_BEGIN = '<!-- params-table -->'
 README_END = '<!-- /params-table -->'
 
 #: values of ``warm_start`` and ``warm_rotations``
-WARM_STARTS = ('model', 'full', 'off')
+WARM_STARTS = ('model', 'full', 'off', 'resume')
 WARM_ROTATIONS = ('refine', 'fit', 'solver')
 #: values of ``output`` and ``mapping``
 OUTPUTS = ('live', 'windows')
@@ -47,14 +47,17 @@ NODE_PARAMS = (
     Param('min_tracks', 10, int,
           'Fewest tracks a frame must have; a frame sharing fewer ids than this with the '
           'previous frame starts a new sequence (all ids changed).', range=(4, 10000000)),
-    Param('warm_start', 'model', str,
+    Param('warm_start', 'resume', str,
           "What each window's solve takes from the previous window's solution on the "
-          "overlapping frames and tracks. 'model': the tracks' spatial groups and the rotation "
-          "method (Dai's or rigid; checked again once half the frames are new); rotations are "
-          "re-estimated over window + context and shapes start from the solver's own start. "
-          "'full': also the overlapping frames' rotations (fixed) and shapes: cheaper, but it "
-          "keeps the earlier windows' errors. 'off': each window from the solver's own start. "
-          'A window without context frames (the first) starts from the rigid factorisation.',
+          "overlapping frames and tracks. 'resume': the ADMM resumes the previous window's "
+          "run: its shapes, multipliers and spatial groups, rotations by Dai's method refined "
+          'from the previous ones at the carried rank (no rank search, no rotation check). '
+          "'model': the groups and the rotation method (Dai's or rigid; checked again once "
+          'half the frames are new); rotations are re-estimated over window + context and '
+          "shapes start from the solver's own start. 'full': also the overlapping frames' "
+          "rotations (fixed) and shapes: cheaper, but it keeps the earlier windows' errors. "
+          "'off': each window from the solver's own start. A window without context frames "
+          '(the first) starts from the rigid factorisation.',
           choices=WARM_STARTS),
     Param('context_frames', 60, int,
           'Earlier frames solved again with each window (not republished): the shape prior '

@@ -41,6 +41,9 @@ Warm start (``warm_start``), what a solve takes from the previous window's solut
 * ``'full'``: also the rotations of the overlapping frames (fixed) and their camera-frame
   shapes (:meth:`SlidingWindow._full_warm_start`).
 * ``'off'``: every window with context from the solver's own start.
+* ``'resume'``: the previous window's ADMM run resumed (:meth:`SlidingWindow._resume_start`):
+  shapes, multipliers and groups of the shared frames and tracks, rotations by Dai's method
+  refined from the previous ones at the carried rank (no rank search, no rotation check).
 
 Alignment: a window's camera-frame shapes are defined up to the sign of depth (the orthographic
 reflection) and a depth offset; each window's depth is centred per frame and its sign chosen to
@@ -55,14 +58,18 @@ import time
 
 import numpy as np
 from scipy.spatial import cKDTree
+from threadpoolctl import threadpool_limits
 
 from grass_nrsfm_ros import params
 from grass_nrsfm_ros.cloud import strictly_increasing
 from grass_nrsfm_ros.nrsfm import GrassmannNRSfM, WarmStart
 from grass_nrsfm_ros.nrsfm.density import fill_dropped
 from grass_nrsfm_ros.nrsfm.measurement import as_frames, centre
-from grass_nrsfm_ros.nrsfm.rotation import (align_rotations, estimate_rotations,
-                                            rigid_factorisation, rotations_from_rows)
+from grass_nrsfm_ros.nrsfm.rotation import (align_rotations, choose_rank, DEFAULT_CANDIDATES,
+                                            estimate_rotations, max_rank,
+                                            rigid_factorisation, rotations_from_rows,
+                                            rotations_from_start)
+from grass_nrsfm_ros.nrsfm.solver import BLAS_THREADS
 from grass_nrsfm_ros.params import MIN_WINDOW_FRAMES
 
 #: fewest tracks a window may be solved on when ``mapping_tracks`` caps them
@@ -174,6 +181,8 @@ class Solution:
     groups: np.ndarray      # (P,) or None
     report: object          # the solver's report
     residual: float         # ||Wc - x,y rows of S|| / ||Wc||: relative reprojection residual
+    Y1: np.ndarray = None   # (3F, P) camera-frame ADMM multipliers, W's units (None: unknown)
+    K_rot: int = None       # Dai's rank of the rotations (1: rigid), None: unknown
 
 
 def _takes_progress(fit):
@@ -211,7 +220,7 @@ class SlidingWindow:
     """
 
     def __init__(self, solver_factory=None, *, window_size=30, window_stride=10, min_tracks=10,
-                 warm_start='model', align_windows=True, metres_per_pixel=1.0,
+                 warm_start='resume', align_windows=True, metres_per_pixel=1.0,
                  context_frames=60, warm_rotations='solver', warm_start_class=None,
                  key_frames=30, mapping_tracks=0):
         params.check_window(window_size=window_size, window_stride=window_stride,
@@ -242,6 +251,7 @@ class SlidingWindow:
         self._published_until = {}      # sequence -> newest published stamp
         self._previous = None           # Solution of the last solved window
         self._rotation_check = None     # (sequence, method, stamps) of the last full check
+        self._resumed_rank = None       # Dai's rank of the rotations a resumed start gave
         self._lock = threading.Lock()
         self.stats = dict(frames=0, refused=0, resets=0, windows=0, solved=0, failed=0,
                           published=0, frames_lost=0)
@@ -385,7 +395,12 @@ class SlidingWindow:
         """Reconstruct ``window`` (with its context frames); return FrameResults of its frames
         not yet published (in stamp order). Raises WindowError when its frames share fewer than
         ``min_tracks`` tracks. ``progress(iteration, report)`` is handed to solvers whose
-        ``fit`` takes it (an exception raised there abandons the solve and propagates)."""
+        ``fit`` takes it (an exception raised there abandons the solve and propagates).
+        BLAS runs on BLAS_THREADS threads throughout, as in the solver."""
+        with threadpool_limits(limits=BLAS_THREADS, user_api='blas'):
+            return self._solve(window, progress)
+
+    def _solve(self, window, progress):
         if window.ids.size < self.min_tracks:
             self._count('failed')
             raise WindowError(f'window {window.index}: its {window.n_frames} frames share '
@@ -406,15 +421,19 @@ class SlidingWindow:
             raise WindowError(f'window {window.index}: the solver returned non-finite shapes or '
                               'rotations; nothing published')
         groups = getattr(result, 'groups', None)
+        Y1 = getattr(result, 'Y1', None)
         if keep is not None:
             labels = np.zeros(keep.size, dtype=int) if groups is None else groups
             S, groups = fill_dropped(S, labels, problem.W, keep)
+            if Y1 is not None:
+                Y1, kept = np.zeros_like(S), Y1
+                Y1[:, keep] = kept
         Z = as_frames(S, 3)[:, 2, :]
         Z -= Z.mean(axis=1, keepdims=True)
         if self.align_windows and self._depth_disagrees(problem, Z):
-            S = DEPTH_FLIP @ as_frames(S, 3)
-            S = S.reshape(-1, S.shape[-1])
+            S = flip_depth(S)
             R = DEPTH_FLIP @ R @ DEPTH_FLIP
+            Y1 = None if Y1 is None else flip_depth(Y1)
             Z = as_frames(S, 3)[:, 2, :]
         F = len(problem.stamps)
         uv = problem.W.reshape(F, 2, -1).transpose(0, 2, 1)
@@ -426,17 +445,28 @@ class SlidingWindow:
             self._rotation_check = (problem.sequence, report.rotation_method, problem.stamps) \
                 if full else None
         self._previous = Solution(window.sequence, problem.stamps, problem.ids, uv, S, R,
-                                  groups, report, residual)
+                                  groups, report, residual, Y1, self._rank_of(report, init))
         self._count('solved')
         c = problem.n_context
         return self._publish(window, problem.ids, as_frames(Wc, 2)[c:], Z[c:])
+
+    def _rank_of(self, report, init):
+        """Dai's rank of a solve's rotations: the solver's, 1 for rigid ones, the resumed
+        start's when they were given (None: unknown)."""
+        method = getattr(report, 'rotation_method', None)
+        if method == 'dai':
+            return report.K_rot
+        if method == 'rigid':
+            return 1
+        return self._resumed_rank if method == 'given' and init is not None else None
 
     def flip_previous(self):
         """Mirror the depth of the last solution (``S``'s z rows, ``R`` -> ``D R D``), so the
         next window aligns to the flipped orientation."""
         p = self._previous
-        S = DEPTH_FLIP @ as_frames(p.S, 3)
-        p.S, p.R = S.reshape(-1, S.shape[-1]), DEPTH_FLIP @ p.R @ DEPTH_FLIP
+        p.S, p.R = flip_depth(p.S), DEPTH_FLIP @ p.R @ DEPTH_FLIP
+        if p.Y1 is not None:
+            p.Y1 = flip_depth(p.Y1)
 
     def _mapped_tracks(self, ids):
         """Indices ``(mapping_tracks,)`` (sorted) of the tracks ``ids: (P,)`` the solver sees,
@@ -528,6 +558,9 @@ class SlidingWindow:
         its rotations and shapes too (:meth:`_full_warm_start`)."""
         cls = self._warm_start_class or WarmStart
         ov = self._overlap(problem)
+        self._resumed_rank = None
+        if self.warm_start == 'resume' and self._resumable(problem, ov):
+            return self._resume_start(problem, Wc, ov, cls)
         if self.warm_start == 'full' and ov is not None:
             return self._full_warm_start(problem, Wc, ov, cls)
         if not problem.n_context or self.warm_start == 'full':
@@ -538,6 +571,50 @@ class SlidingWindow:
         if ov is not None and self._previous.groups is not None:
             groups = np.asarray(self._previous.groups)[self._donors(problem, ov)]
         return cls(groups=groups, rotation_method=self._carried_rotation_method(problem))
+
+    def _resumable(self, problem, ov):
+        """True if ``problem`` (with context) can resume the previous solution's run."""
+        p = self._previous
+        return (ov is not None and problem.n_context > 0 and p.Y1 is not None
+                and p.K_rot is not None)
+
+    def _resume_start(self, problem, Wc, ov, cls):
+        """WarmStart resuming the previous solution's ADMM run (warm_start 'resume'):
+        rotations by Dai's method refined from the previous ones (:meth:`_resume_rotations`),
+        shapes and spatial groups as :meth:`_full_warm_start` carries them, and the multipliers
+        of the shared frames and tracks (zero elsewhere). The penalty schedule starts again at
+        the solver's warm_beta0 (docs/decisions/0404)."""
+        fn, fo, tn, to = ov
+        p = self._previous
+        F, P = len(problem.stamps), problem.ids.size
+        known = np.zeros(F, dtype=bool)
+        known[fn] = True
+        start = self._full_warm_start(problem, Wc, ov, cls)
+        R, self._resumed_rank = self._resume_rotations(problem.W, np.asarray(start.R), known,
+                                                       p.K_rot)
+        Y1 = np.zeros((F, 3, P))
+        Y1[np.ix_(fn, np.arange(3), tn)] = as_frames(p.Y1, 3)[np.ix_(fo, np.arange(3), to)]
+        return replace(start, R=R, known=np.ones(F, dtype=bool), Y1=Y1.reshape(3 * F, P))
+
+    @staticmethod
+    def _resume_rotations(W, R0, known, K):
+        """``(R: (F, 3, 3), K)``: Dai's rotations of ``W`` refined from ``R0`` on the ``known``
+        frames (:func:`rotations_from_start`) at ranks K - 1, K, K + 1 within Dai's candidates
+        (K = 1, rigid: that rank only), the rank chosen among them by :func:`choose_rank`;
+        ``(R0, K)`` where every rank fails."""
+        F = W.shape[0] // 2
+        top = min(max(DEFAULT_CANDIDATES), max_rank(F, W.shape[1]))
+        ranks = [K] if K == 1 else [k for k in (K - 1, K, K + 1) if 1 <= k <= top]
+        estimates = {}
+        for k in ranks:
+            try:
+                estimates[k] = rotations_from_start(W, k, R0, known)
+            except (ValueError, np.linalg.LinAlgError):
+                continue
+        if not estimates:
+            return R0, K
+        chosen = choose_rank({k: e.scores['residual'] for k, e in estimates.items()}, F)[0]
+        return estimates[chosen].R, chosen
 
     def _carried_rotation_method(self, problem):
         """The rotation method of the solver's last check in this sequence if that check saw
@@ -653,8 +730,14 @@ def subset_init(init, keep):
     if init is None or keep is None:
         return init
     S = None if init.S is None else np.asarray(init.S)[:, keep]
+    Y1 = None if init.Y1 is None else np.asarray(init.Y1)[:, keep]
     groups = None if init.groups is None else np.asarray(init.groups)[keep]
-    return replace(init, S=S, groups=groups)
+    return replace(init, S=S, Y1=Y1, groups=groups)
+
+
+def flip_depth(S):
+    """``S: (3F, P)`` camera-frame shapes with their depth rows negated (DEPTH_FLIP)."""
+    return (DEPTH_FLIP @ as_frames(S, 3)).reshape(S.shape)
 
 
 def reconstruct_sequence(pipeline, stamps, frames, frame_id=''):

@@ -42,7 +42,8 @@ def test_ros_layout_and_flat_mapping(tmp_path):
     ('window_size: 20.5', 'window_size=20.5: expected int, got float'),
     ('metres_per_pixel: .nan', 'must be finite'),
     ('warm_start: true', 'warm_start=True: expected str, got bool'),
-    ('warm_start: warm', r"warm_start='warm': expected one of \['model', 'full', 'off'\]"),
+    ('warm_start: warm',
+     r"warm_start='warm': expected one of \['model', 'full', 'off', 'resume'\]"),
     ('window_size: 10\nwindow_stride: 11', 'window_stride=11 exceeds window_size=10'),
     ('- 1', 'expected a mapping'),
 ])

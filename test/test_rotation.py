@@ -8,7 +8,7 @@ from grass_nrsfm_ros.nrsfm.measurement import validate_rotations
 from grass_nrsfm_ros.nrsfm.metrics import e3d, rotation_error
 from grass_nrsfm_ros.nrsfm.rotation import (choose_rank, estimate_rotations,
                                             rigid_factorisation, rotation_spread,
-                                            sign_continuity)
+                                            rotations_from_start, sign_continuity)
 
 
 def smooth_rotations(F, rng, step_deg=4.0):
@@ -88,6 +88,27 @@ def test_dai_rotations_with_noise_within_a_few_degrees(K_true):
     W, _, R_true = synthetic(K=K_true, noise=0.02, seed=20 + K_true)
     est = estimate_rotations(W, K=K_true)
     assert rotation_error(est.R, R_true) < 6.0      # measured 2.2 to 4.0 deg at 2 % noise
+
+
+@pytest.mark.parametrize('K_true', [2, 3])
+def test_rotations_from_start_reach_the_seeded_estimate_in_the_start_frame(K_true):
+    W, _, R_true = synthetic(K=K_true, noise=0.01, seed=40 + K_true)
+    F = W.shape[0] // 2
+    seeded = estimate_rotations(W, K=K_true)
+    # the start: an earlier window's estimate (frames 0-79 alone), in another world frame
+    Q = Rotation.from_rotvec([0.3, -0.2, 0.5]).as_matrix()
+    known = np.arange(F) < 80
+    R0 = np.broadcast_to(np.eye(3), (F, 3, 3)).copy()
+    R0[known] = estimate_rotations(W[:160], K=K_true).R @ Q
+    est = rotations_from_start(W, K_true, R0, known)
+    validate_rotations(est.R, F)
+    assert est.K == K_true
+    # the seeded search's optimum (rotation_error aligns the world frame once) ...
+    assert rotation_error(est.R, seeded.R) < 1e-3
+    assert rotation_error(est.R, R_true) < 6.0      # the seeded estimate's: 2.5 / 3.9 deg
+    # ... in the start's world frame: frame by frame (no alignment) near the start
+    cos = (np.trace(est.R[known] @ R0[known].transpose(0, 2, 1), axis1=1, axis2=2) - 1) / 2
+    assert np.degrees(np.arccos(np.clip(cos, -1, 1))).mean() < 3.0
 
 
 @pytest.mark.parametrize('K_true, seed', [(1, 30), (2, 31), (3, 32), (4, 33)])

@@ -114,3 +114,22 @@ def test_fit_leaves_the_parameters_unchanged():
 def test_deleted_options_are_refused(name):
     with pytest.raises(TypeError, match=name):
         GrassmannNRSfM(**{name: 1})
+
+
+def test_a_fit_resumed_from_its_own_end_stays_at_its_solution():
+    seq = make_sequence('bending', n_frames=30, n_points=300, seed=2)
+    solver = GrassmannNRSfM(inextensible='never')
+    first = solver.fit(seq.W, init=WarmStart(R=seq.R))
+    assert first.Y1.shape == first.S.shape and 0 < first.beta <= solver.beta_max
+    # what a resumed window is given on the frames it shares: shapes, groups, multipliers,
+    # beta (here 1e-4 of where the run ended)
+    again = solver.fit(seq.W, init=WarmStart(R=first.R, S=first.S, groups=first.groups,
+                                             Y1=first.Y1, beta=1e-4 * first.beta))
+    restart = solver.fit(seq.W, init=WarmStart(R=first.R, S=first.S, groups=first.groups))
+    change = np.linalg.norm(again.S - first.S) / np.linalg.norm(first.S)
+    restarted = np.linalg.norm(restart.S - first.S) / np.linalg.norm(first.S)
+    print(f'iterations {again.report.iterations} vs {restart.report.iterations} from zero '
+          f'multipliers at warm_beta0; relative change of S {change:.2e} vs {restarted:.2e}')
+    # measured: 51 vs 84 iterations, relative change 1.4e-3 vs 1.6e-2
+    assert again.report.iterations < 0.7 * restart.report.iterations
+    assert change < 0.2 * restarted

@@ -338,7 +338,7 @@ def rigid_factorisation(W):
 
 # ----------------------------------------------------------------------------- Dai et al.
 
-def _max_rank(F, P):
+def max_rank(F, P):
     """Largest K with ``3K <= min(2F, P)`` and enough constraints (2F) to pin the null space.
 
     The constraints must cut ``3K(3K+1)/2`` unknowns down to ``2K^2 - K``, i.e. at least
@@ -414,7 +414,7 @@ def estimate_rotations(W, K='auto', *, candidates=DEFAULT_CANDIDATES, random_sta
     F, P = svd[3].shape[0] // 2, svd[3].shape[1]
     if K == 'auto':
         wanted = sorted(k for k in set(int(c) for c in candidates) if k >= 1)
-        top = min(max(wanted, default=1), _max_rank(F, P))
+        top = min(max(wanted, default=1), max_rank(F, P))
         ranks = list(range(1, top + 1))
     else:
         if int(K) != K or K < 1:
@@ -443,6 +443,45 @@ def estimate_rotations(W, K='auto', *, candidates=DEFAULT_CANDIDATES, random_sta
         chosen, rule = int(K), f'K={int(K)} given'
     scores['rule'] = rule
     return RotationEstimate(R=results[chosen], K=chosen, scores=scores)
+
+
+def rotations_from_start(W, K, R0, known):
+    """Dai et al.'s rotations of ``W: (2F, P)`` at rank ``K``, refined from given rotations
+    ``R0: (F, 3, 3)`` on the ``known: (F,)`` frames instead of seeded starts (the incremental
+    estimate of a window that overlaps a solved one).
+
+    The start is the column triple ``G0: (3K, 3)`` with ``Pi_f G0 ~ c_f R0_f[:2]`` on the known
+    frames (``c_f`` the basis coefficients: the smallest right singular vector of that linear
+    system), refined over every frame as in :func:`rotations_for_rank`. The result is put in
+    R0's world frame (one rotation Q, or the depth-flip twin, fitted on the known frames);
+    known frames are re-estimated, not kept. Raises ValueError where W's rank is too low or a
+    frame's rows degenerate. Returns a :class:`RotationEstimate`."""
+    U, d, Vt, Wn, _ = normalised_svd(W)
+    n = min(3 * int(K), _numerical_rank(d))
+    if n < 3:
+        raise ValueError(f'W has numerical rank {_numerical_rank(d)} < 3')
+    Pi = _motion_factor(U, d, n)
+    idx = np.flatnonzero(known)
+    rows = as_frames(Pi, 2)[idx]                                # (Fk, 2, n)
+    F_k = idx.size
+    A = np.zeros((F_k, 2, 3, 3 * n + F_k))
+    # vec(G) column-major over (n, 3): entry (j, c) at j * 3 + c
+    A[:, :, :, :3 * n] = np.einsum('fij,ck->ficjk', rows, np.eye(3)).reshape(F_k, 2, 3, 3 * n)
+    A[np.arange(F_k), :, :, 3 * n + np.arange(F_k)] = -R0[idx, :2, :]
+    x = np.linalg.svd(A.reshape(6 * F_k, -1), full_matrices=False)[2][-1]
+    G, residual = _refine(x[:3 * n].reshape(n, 3) / np.linalg.norm(x[:3 * n]), Pi)
+    R, ok = _rotations_from_triple(Pi, G)
+    if not ok.all():
+        raise ValueError('rotation rows degenerate for some frames')
+    D = np.diag([1.0, 1.0, -1.0])
+    best, best_err = None, np.inf
+    for cand in (R, D @ R @ D):
+        Q = nearest_rotation(np.einsum('fji,fjk->ik', cand[idx], R0[idx]))
+        err = np.linalg.norm(cand[idx] @ Q - R0[idx])
+        if err < best_err:
+            best, best_err = cand @ Q, err
+    return RotationEstimate(R=best, K=int(K), scores={'residual': residual, 'rank_used': n,
+                                                      'rule': f'K={int(K)} from the start'})
 
 
 def noise_ratio(K, n_frames):

@@ -1,7 +1,7 @@
-"""Stage 'refinement' (cold solves of dense tracks): each frame's depths made inextensible
-(:func:`..inextensible.refine_depth`: edge lengths from the longest image lengths, signs
-re-estimated from the world shapes), kept when that cuts the variation of the 3D edge lengths
-below INEXTENSIBLE_RATIO of the solver's ('auto') or always ('always').
+"""Stage 'refinement' (cold and resumed solves of dense tracks): each frame's depths made
+inextensible (:func:`..inextensible.refine_depth`: edge lengths from the longest image
+lengths, signs re-estimated from the world shapes), kept when that cuts the variation of the
+3D edge lengths below INEXTENSIBLE_RATIO of the solver's ('auto') or always ('always').
 
 With nuclear='auto', a centred solve whose shapes would take the inextensible depths (a
 surface that bends without stretching) is solved again with the plain norm first.
@@ -35,10 +35,10 @@ class Check:
 
 
 def applies(problem, params):
-    """Cold solves (no initial shapes: a warm-started window keeps its carried depths), dense
-    tracks unless 'always'."""
+    """Cold and resumed solves (a window warm-started with shapes alone keeps its carried
+    depths), dense tracks unless 'always'."""
     mode = params['inextensible']
-    if mode == 'never' or problem.warm:
+    if mode == 'never' or (problem.warm and problem.init.Y1 is None):
         return False
     return mode == 'always' or problem.P >= INEXTENSIBLE_MIN_POINTS
 
