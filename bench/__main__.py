@@ -12,7 +12,7 @@ import time
 
 from . import common
 
-SUITES = ('accuracy', 'noise', 'parameters', 'scale', 'streaming', 'live')
+SUITES = ('accuracy', 'noise', 'parameters', 'scale', 'streaming', 'live', 'rotations')
 
 
 def parse_args(argv):
