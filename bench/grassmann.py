@@ -97,7 +97,7 @@ def cases(mode):
     if mode.name == 'smoke':
         yield 'synthetic_bending', common.synthetic('bending', 10, 100)
         return
-    F, P = mode.pick(None, (30, 1000), (99, 5000))
+    F, P = mode.pick(None, (99, 5000), (99, 5000))
     face = common.dense_face(F, P)
     if face is not None:
         yield f'dense_face_{F}x{P}', face

@@ -14,7 +14,8 @@ from grass_nrsfm_ros.nrsfm import GrassmannNRSfM
 from grass_nrsfm_ros.nrsfm.metrics import e3d, e3d_akhter, rotation_error
 from grass_nrsfm_ros.nrsfm.problem import WarmStart
 from grass_nrsfm_ros.nrsfm.rotation import estimate_rotations
-from grass_nrsfm_ros.nrsfm.rotation_averaging import op_rotations, so3_log
+from grass_nrsfm_ros.nrsfm.rotation_averaging import (average_within, op_rotations, op_samples,
+                                                      so3_log)
 from grass_nrsfm_ros.nrsfm.synthetic import make_sequence
 from . import common
 
@@ -28,8 +29,8 @@ OP_SCHEDULE = {'beta0': 1e-4, 'rho': 1.1, 'beta_max': 1e10, 'max_iter': 400}
 SHAPES = {'plain': {'nuclear': 'plain'},
           'weighted': {'nuclear': 'weighted'},
           'weighted_op_schedule': {'nuclear': 'weighted', **OP_SCHEDULE}}
-#: filter radii of the delta sweep (chordal; OP's is 0.05; 4 keeps every candidate)
-DELTAS = (0.2, 4.0)
+#: filter radii of the delta sweep (chordal; OP's is 0.05; 4 keeps every candidate), by mode
+DELTAS = {'quick': (4.0,), 'full': (0.2, 4.0)}
 ROTATIONS = {'dai': lambda W: estimate_rotations(W), 'op': lambda W: op_rotations(W)}
 
 
@@ -60,16 +61,17 @@ def shapes(mode, family, method):
     return SHAPES
 
 
-def delta_sweep(name, W, S, R_dai):
-    """OP's rotations with wider filters than OP's 0.05: how far they move from Dai's, and the
-    plain solve's Akhter e3D with them."""
+def delta_sweep(name, W, S, dai, deltas):
+    """OP's rotations with wider filters than OP's 0.05 (the samples of Dai's estimate
+    ``dai``): how far they move from Dai's, and the plain solve's Akhter e3D with them."""
     rows = []
-    for delta in DELTAS:
-        est = op_rotations(W, delta=delta)
-        res = GrassmannNRSfM(nuclear='plain').fit(W, init=WarmStart(R=est.R))
-        rows.append({'sequence': name, 'delta': delta, 'kept_share': est.scores['op'][
-            'kept_share'], 'angle_to_dai_deg': mean_angle(est.R, R_dai),
-            'e3d_akhter': e3d_akhter(res.S, S)})
+    samples, _ = op_samples(W, dai)
+    for delta in deltas:
+        R, kept, _ = average_within(samples, delta)
+        res = GrassmannNRSfM(nuclear='plain').fit(W, init=WarmStart(R=R))
+        rows.append({'sequence': name, 'delta': delta, 'kept_share': kept,
+                     'angle_to_dai_deg': mean_angle(R, dai.R),
+                     'e3d_akhter': e3d_akhter(res.S, S)})
         print(f"{name:22s} delta {delta:g}: kept {rows[-1]['kept_share']:.3f} angle to Dai "
               f"{rows[-1]['angle_to_dai_deg']:.2f} deg, akhter {rows[-1]['e3d_akhter']:.4f}",
               flush=True)
@@ -82,10 +84,11 @@ def mean_angle(A, B):
 
 
 def rotation_rows(name, W, R_true):
-    """``{method: (R, row)}`` for Dai's and OP's rotations."""
-    out = {}
+    """``({method: (R, row)}, Dai's RotationEstimate)`` for Dai's and OP's rotations."""
+    out, ests = {}, {}
     for method, estimate in ROTATIONS.items():
         est, wall, cpu = common.timed(estimate, W)
+        ests[method] = est
         row = {'K_rot': est.K, 'rotation_seconds_cpu': cpu}
         if 'op' in est.scores:
             op = est.scores['op']
@@ -95,16 +98,16 @@ def rotation_rows(name, W, R_true):
             row['rotation_error_deg'] = rotation_error(est.R, R_true)
         out[method] = (est.R, row)
     out['op'][1]['angle_to_dai_deg'] = mean_angle(out['op'][0], out['dai'][0])
-    return out
+    return out, ests['dai']
 
 
 def run(mode):
     rows, skipped, sweep = [], [], []
     for name, family, W, S, R_true in cases(mode):
         F, P = W.shape[0] // 2, W.shape[1]
-        rotations = rotation_rows(name, W, R_true)
+        rotations, dai = rotation_rows(name, W, R_true)
         if family == 'mocap' and mode.name != 'smoke':
-            sweep += delta_sweep(name, W, S, rotations['dai'][0])
+            sweep += delta_sweep(name, W, S, dai, DELTAS[mode.name])
         for method, (R, rot_row) in rotations.items():
             for shape, params in shapes(mode, family, method).items():
                 common.log(f'rotations: {name} ({F} x {P}) {method} {shape}')

@@ -9,7 +9,8 @@ with the rotations of the other column triplets of the corrective matrix.
   sign of the camera rows nearer the reference.
 * :func:`l1_average`: the per-frame L1 rotation average (Weiszfeld in the tangent space, from
   the projected entry-wise median) of ``samples: (F, n, 3, 3)`` with ``mask: (F, n)``.
-* :func:`op_rotations`: the whole method; a :class:`~.rotation.RotationEstimate`.
+* :func:`op_samples`, :func:`average_within`: the samples of a reference, their filter and
+  average; :func:`op_rotations`: the whole method, a :class:`~.rotation.RotationEstimate`.
 
 Rotations are ``(..., 3, 3)`` world to camera, as in :mod:`.rotation`. The constants are OP's:
 filter radius ``DELTA`` (chordal, to the reference), ``SRA_ITERATIONS``, ``SRA_TOL``.
@@ -201,6 +202,26 @@ def l1_average(samples, mask, *, iterations=SRA_ITERATIONS, tol=SRA_TOL):
 
 # ----------------------------------------------------------------------------- the method
 
+def op_samples(W, reference, *, _svd=None):
+    """The per-frame samples of OP's average for ``W: (2F, P)`` and Dai's ``reference``
+    (a :class:`~.rotation.RotationEstimate`): ``(samples: (F, 1 + n, 3, 3)`` with the reference
+    first, ``info`` dict of the candidates' refinement and registration residuals``)``."""
+    cand, refine_res = triplet_candidates(W, reference.K, _svd=_svd)
+    registered, reg_res = register_candidates(reference.R, cand)
+    samples = np.concatenate([reference.R[:, None], registered.transpose(1, 0, 2, 3)], axis=1)
+    return samples, {'candidates': int(cand.shape[0]), 'refine_residuals': refine_res.tolist(),
+                     'registration_residuals': reg_res.tolist()}
+
+
+def average_within(samples, delta=DELTA):
+    """OP's filter and average of ``samples: (F, n, 3, 3)`` (reference first): ``(R: (F, 3, 3),
+    kept share of the other samples, Weiszfeld iterations)``."""
+    mask = chordal(samples, samples[:, :1]) < delta
+    mask[:, 0] = True
+    R, iterations = l1_average(samples, mask)
+    return R, float(mask[:, 1:].mean()) if samples.shape[1] > 1 else 0.0, iterations
+
+
 def op_rotations(W, K='auto', *, candidates=None, random_state=0, delta=DELTA):
     """Organic Priors' rotations of ``W: (2F, P)`` (any translation).
 
@@ -208,8 +229,9 @@ def op_rotations(W, K='auto', *, candidates=None, random_state=0, delta=DELTA):
     the data or given); the K triplet candidates at that K (:func:`triplet_candidates`) are
     registered to it (:func:`register_candidates`), kept per frame within chordal ``delta`` of
     it, and averaged with it per frame (:func:`l1_average`). Falls back to the reference where
-    Dai's step fell back. Returns a :class:`~.rotation.RotationEstimate` whose ``scores['op']``
-    holds the candidates' residuals, the share of samples kept and the Weiszfeld iterations.
+    Dai's step fell back or K = 1. Returns a :class:`~.rotation.RotationEstimate` whose
+    ``scores['op']`` holds the candidates' residuals, the share of samples kept and the
+    Weiszfeld iterations.
     """
     svd = normalised_svd(W)
     kwargs = {} if candidates is None else {'candidates': candidates}
@@ -217,14 +239,7 @@ def op_rotations(W, K='auto', *, candidates=None, random_state=0, delta=DELTA):
     if 'fallback' in ref.scores or ref.K < 2:
         return RotationEstimate(R=ref.R, K=ref.K, scores={
             **ref.scores, 'op': {'candidates': 0, 'kept_share': 0.0, 'iterations': 0}})
-    cand, refine_res = triplet_candidates(W, ref.K, _svd=svd)
-    registered, reg_res = register_candidates(ref.R, cand)
-    samples = np.concatenate([ref.R[:, None], registered.transpose(1, 0, 2, 3)], axis=1)
-    mask = chordal(samples, ref.R[:, None]) < delta
-    mask[:, 0] = True
-    R, iterations = l1_average(samples, mask)
-    info = {'candidates': int(cand.shape[0]), 'refine_residuals': refine_res.tolist(),
-            'registration_residuals': reg_res.tolist(),
-            'kept_share': float(mask[:, 1:].mean()) if cand.shape[0] else 0.0,
-            'iterations': iterations}
+    samples, info = op_samples(W, ref, _svd=svd)
+    R, kept, iterations = average_within(samples, delta)
+    info.update(kept_share=kept, iterations=iterations)
     return RotationEstimate(R=R, K=ref.K, scores={**ref.scores, 'op': info})
