@@ -15,6 +15,7 @@ self-expression coefficients.
 This module owns:
 
 * :class:`AdmmSettings`: the numbers of one solve (absolute gamma, sizes, switches);
+* :func:`partial_weights`: the weights of Organic Priors' weighted partial norm (``weighted``);
 * :class:`AdmmState`: the variables and one iteration (:meth:`AdmmState.iterate`);
 * :func:`stop_reason`: the stopping rule (every gap below GAP_TOLERANCE, or beta at beta_max);
 * :func:`run`: iterate until the rule says stop;
@@ -439,16 +440,10 @@ class AdmmState:
         singular value's weight (``gamma``, or the weighted norm's weights by rank)."""
         vals, vecs = np.linalg.eigh(G)
         sv = np.sqrt(np.maximum(vals, 0.0))
-        w = self.gamma if self.weights is None else self._weights_for(sv.size)
+        w = self.gamma if self.weights is None else self.weights   # the Gram is min(F, 3P) wide
         shrink = np.where(sv > 0, np.maximum(sv - w / beta, 0.0) / np.where(
             sv > 0, sv, 1.0), 0.0)
         return vecs, shrink
-
-    def _weights_for(self, n):
-        """The ascending weights of an ``n``-sized Gram (padded with the largest weight where
-        the Gram is larger than ``min(F, 3P)``)."""
-        w = self.weights
-        return w[-n:] if n <= w.size else np.concatenate([np.full(n - w.size, w[0]), w])
 
     def _nuclear(self, gram):
         """The (weighted) nuclear norm of a matrix of Gram ``gram``, divided by gamma where
@@ -456,7 +451,7 @@ class AdmmState:
         sv = np.sqrt(np.maximum(np.linalg.eigvalsh(gram), 0.0))
         if self.weights is None:
             return float(sv.sum())
-        return float((self._weights_for(sv.size) * sv).sum()) / self.gamma
+        return float((self.weights * sv).sum()) / self.gamma
 
     def _sharp_operator(self, G, beta, it):
         """Wide case (F <= 3P): ``op: (F, F)`` with ``S# = op X`` and the Gram of S#."""
