@@ -114,7 +114,7 @@ def triplet_candidates(W, K, *, _svd=None):
     ``G = V diag(w)^{1/2}: (n, n)`` from the eigenvectors of the full-rank PSD null-space
     point (descending), n = 3K (less where W has lower rank); triplet k is columns 3k-3..3k,
     refined by Dai's scale-free orthonormality cost. Returns ``(R: (K', F, 3, 3),
-    residuals: (K',))`` for the K' = n // 3 triplets.
+    residuals: (K',))``, K' <= n // 3 (triplets with degenerate rows left out).
     """
     U, d, _, _, _ = _svd if _svd is not None else normalised_svd(W)
     n = min(3 * K, _numerical_rank(d))
