@@ -12,7 +12,8 @@ import time
 
 from . import common
 
-SUITES = ('accuracy', 'noise', 'parameters', 'scale', 'streaming', 'live')
+SUITES = ('accuracy', 'noise', 'parameters', 'scale', 'streaming', 'live', 'rotations',
+          'grassmann')
 
 
 def parse_args(argv):

@@ -149,6 +149,48 @@ def live_table(doc):
     return lines
 
 
+ROTATION_COLUMNS = (('dai', 'plain'), ('dai', 'weighted'), ('dai', 'weighted_beta0'),
+                    ('dai', 'weighted_op_schedule'), ('dai', 'weighted_op_alone'),
+                    ('op', 'plain'), ('op', 'weighted_op_schedule'))
+
+
+def rotations_table(doc):
+    """Akhter e3D (mocap) / e3D (synthetic) by rotations x shape setting; rotation error."""
+    rows = doc['rows']
+    cols = [c for c in ROTATION_COLUMNS
+            if any((r['rotations'], r['shape']) == c for r in rows)]
+    lines = ['| sequence | ' + ' | '.join(f'{m} R, {s}' for m, s in cols)
+             + ' | rot. error Dai / OP (deg) | OP kept | published R-BMM / OP |',
+             '|---|' + '---|' * (len(cols) + 3)]
+    for seq in dict.fromkeys(r['sequence'] for r in rows):
+        by = {(r['rotations'], r['shape']): r for r in rows if r['sequence'] == seq}
+        key = 'e3d_akhter' if next(iter(by.values()))['family'] == 'mocap' else 'e3d'
+        cells = [fmt(by[c][key]) if c in by else '-' for c in cols]
+        dai, op = by.get(('dai', 'plain'), {}), by.get(('op', 'plain'), {})
+        err = (f"{fmt(dai.get('rotation_error_deg'), 2)} / {fmt(op.get('rotation_error_deg'), 2)}"
+               if dai.get('rotation_error_deg') is not None else '-')
+        pub = (f"{fmt(dai['published_rbmm'])} / {fmt(dai['published_op'])}"
+               if dai.get('published_op') is not None else '-')
+        label = seq if key == 'e3d_akhter' else f'{seq} (e3D)'
+        lines.append(f'| {label} | ' + ' | '.join(cells)
+                     + f" | {err} | {fmt(op.get('kept_share'), 2)} | {pub} |")
+    return lines
+
+
+def grassmann_table(doc):
+    """What the Grassmann branches change (bench.grassmann)."""
+    lines = ['| sequence | setting | e3D | zeta_s / zeta_t share (max per iteration) | '
+             'rank S# | points regrouped / block edges moved | Omega_s / Omega_t off-diag. |',
+             '|---|---|---|---|---|---|---|']
+    for r in doc['rows']:
+        lines.append(f"| {r['sequence']} | {r['setting']} | {fmt(r['e3d'])} | "
+                     f"{r['zeta_s_share_max']:.1e} / {r['zeta_t_share_max']:.1e} | "
+                     f"{r['sharp_rank_final']} | {r['regrouped_points']} / "
+                     f"{r['block_edges_moved']} | {fmt(r['omega_s_max_off_diagonal'], 2)} / "
+                     f"{fmt(r['omega_t_max_off_diagonal'], 2)} |")
+    return lines
+
+
 SECTIONS = (('accuracy', 'Accuracy (e3D; "A": Akhter\'s metric, the one of the published mocap '
              'numbers; PTA K chosen against ground truth)', accuracy_table),
             ('noise', 'Noise', noise_table),
@@ -156,7 +198,11 @@ SECTIONS = (('accuracy', 'Accuracy (e3D; "A": Akhter\'s metric, the one of the p
             ('scale', 'Scale (fresh process per case; exponents: CPU time / memory)', scale_table),
             ('streaming', 'Streaming (pipeline.SlidingWindow, no ROS)', streaming_table),
             ('live', 'Live (tracking on arrival, windows behind it; e3D; offline, each window '
-             'solved as it closes)', live_table))
+             'solved as it closes)', live_table),
+            ('rotations', "Rotations and shape norm (Akhter's metric on mocap; Dai's vs Organic "
+             "Priors' rotations, plain vs OP's weighted partial norm; records 0500, 0501)",
+             rotations_table),
+            ('grassmann', 'Grassmann branches probed (record 0502)', grassmann_table))
 
 
 def markdown(results):

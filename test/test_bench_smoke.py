@@ -12,13 +12,14 @@ import pytest
 from bench import table
 
 REPO = Path(__file__).resolve().parents[1]
-SUITES = ('accuracy', 'noise', 'parameters', 'scale', 'streaming')
+SUITES = ('accuracy', 'noise', 'parameters', 'scale', 'streaming', 'rotations')
 #: numbers every row of a suite must carry, finite
 ROW_KEYS = {'accuracy': ('e3d', 'seconds_wall', 'seconds_cpu', 'F', 'P'),
             'noise': ('r', 'e3d_mean', 'e3d_std', 'seconds_cpu_mean'),
             'parameters': ('e3d', 'seconds_cpu'),
             'scale': ('F', 'P', 'seconds_wall', 'seconds_cpu', 'rss_peak_mb', 'solve_extra_mb'),
-            'streaming': ('P', 'fps', 'latency_mean_s', 'latency_max_s', 'frames_published')}
+            'streaming': ('P', 'fps', 'latency_mean_s', 'latency_max_s', 'frames_published'),
+            'rotations': ('e3d', 'e3d_akhter', 'rotation_seconds_cpu', 'seconds_cpu', 'F', 'P')}
 
 
 @pytest.fixture(scope='module')

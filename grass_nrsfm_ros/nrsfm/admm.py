@@ -15,6 +15,7 @@ self-expression coefficients.
 This module owns:
 
 * :class:`AdmmSettings`: the numbers of one solve (absolute gamma, sizes, switches);
+* :func:`partial_weights`: the weights of Organic Priors' weighted partial norm (``weighted``);
 * :class:`AdmmState`: the variables and one iteration (:meth:`AdmmState.iterate`);
 * :func:`stop_reason`: the stopping rule (every gap below GAP_TOLERANCE, or beta at beta_max);
 * :func:`run`: iterate until the rule says stop;
@@ -43,6 +44,13 @@ BLOCK_BYTES = 1 << 20
 #: storage of the (F, 3, P) iterates when F * P >= FLOAT32_MIN_SIZE
 STORAGE_DTYPE = np.float32
 FLOAT32_MIN_SIZE = 1 << 20
+#: weighted partial nuclear norm (Organic Priors): ``theta_i = xi / (sigma_i + OP_GAMMA)`` from
+#: the singular values of the pseudo-inverse S#, ``xi = OP_XI sqrt(sigma_1)``, the first
+#: OP_UNPENALISED values free, multiplier OP_MU (OP's constants, on unit-RMS tracks)
+OP_XI = 5e-3
+OP_GAMMA = 1e-6
+OP_UNPENALISED = 1
+OP_MU = 1.0
 #: the per-iteration fields of an AdmmState a checkpoint holds (besides settings-derived ones)
 STATE_ARRAYS = ('C_s', 'J_s', 'Y2', 'C_t', 'J_t', 'Y3', 'Omega_s', 'Omega_t', 't_edges')
 
@@ -51,7 +59,9 @@ STATE_ARRAYS = ('C_s', 'J_s', 'Y2', 'C_t', 'J_t', 'Y3', 'Omega_s', 'Omega_t', 't
 class AdmmSettings:
     """The numbers of one ADMM solve. ``gamma`` is absolute (on unit-RMS tracks); ``K_s``,
     ``K_t``, ``N_s``, ``N_t`` are resolved integers; ``centred``: the nuclear norm acts on S#
-    less its mean row; ``max_iter``: a cap on the iterations of :func:`run`."""
+    less its mean row; ``weighted``: instead of ``gamma ||S#||_*``, Organic Priors' weighted
+    partial norm (:func:`partial_weights`); ``max_iter``: a cap on the iterations of
+    :func:`run`."""
 
     gamma: float
     lambda1: float
@@ -76,6 +86,23 @@ class AdmmSettings:
     K_t: int
     N_s: int
     N_t: int
+    weighted: bool = False
+
+
+def partial_weights(Wn, R):
+    """Organic Priors' weights of the singular values of S# (descending): ``(min(F, 3P),)``.
+
+    From the pseudo-inverse world shapes ``R_f[:2]^T W_f`` of ``Wn: (2F, P)``, ``R: (F, 3, 3)``:
+    ``OP_MU xi / (sigma_i + OP_GAMMA)`` with ``xi = OP_XI sqrt(sigma_1)``, 0 for the first
+    OP_UNPENALISED (their shrinkage is the exact proximal step: the weights do not decrease).
+    """
+    F, P = R.shape[0], Wn.shape[1]
+    sharp = (R[:, :2, :].transpose(0, 2, 1) @ Wn.reshape(F, 2, P)).reshape(F, 3 * P)
+    gram = sharp @ sharp.T if F <= 3 * P else sharp.T @ sharp
+    sigma = np.sqrt(np.maximum(np.linalg.eigvalsh(gram)[::-1], 0.0))
+    theta = OP_MU * OP_XI * np.sqrt(sigma[0]) / (sigma + OP_GAMMA)
+    theta[:OP_UNPENALISED] = 0.0
+    return theta
 
 
 @dataclass
@@ -208,6 +235,8 @@ class AdmmState:
         s = settings
         self.F, self.P, self.s, self.R, self.warm = F, P, s, R, warm
         self.centred, self.gamma = s.centred, s.gamma
+        # weighted: per-singular-value weights (ascending, as eigh orders the Gram) replace gamma
+        self.weights = partial_weights(Wn, R)[::-1].copy() if s.weighted else None
         self.K_t, self.N_s, self.N_t = s.K_t, s.N_s, s.N_t
         self.K_s = K_s = int(labels.max()) + 1
         self.order = order
@@ -410,12 +439,22 @@ class AdmmState:
         return B
 
     def _shrink(self, G, beta):
-        """Eigenvectors of a Gram matrix and the SVT factors ``max(s - gamma/beta, 0) / s``."""
+        """Eigenvectors of a Gram matrix and the SVT factors ``max(s - w/beta, 0) / s``, w the
+        singular value's weight (``gamma``, or the weighted norm's weights by rank)."""
         vals, vecs = np.linalg.eigh(G)
         sv = np.sqrt(np.maximum(vals, 0.0))
-        shrink = np.where(sv > 0, np.maximum(sv - self.gamma / beta, 0.0) / np.where(
+        w = self.gamma if self.weights is None else self.weights   # the Gram is min(F, 3P) wide
+        shrink = np.where(sv > 0, np.maximum(sv - w / beta, 0.0) / np.where(
             sv > 0, sv, 1.0), 0.0)
         return vecs, shrink
+
+    def _nuclear(self, gram):
+        """The (weighted) nuclear norm of a matrix of Gram ``gram``, divided by gamma where
+        weighted so that ``gamma * value`` is the objective's term."""
+        sv = np.sqrt(np.maximum(np.linalg.eigvalsh(gram), 0.0))
+        if self.weights is None:
+            return float(sv.sum())
+        return float((self.weights * sv).sum()) / self.gamma
 
     def _sharp_operator(self, G, beta, it):
         """Wide case (F <= 3P): ``op: (F, F)`` with ``S# = op X`` and the Gram of S#."""
@@ -436,8 +475,7 @@ class AdmmState:
             G1 = B @ G1 @ B.T
             self.t_bases = gm.block_bases(G1, self.t_edges, self.N_t)
         penalised = H @ G1 @ H if self.centred else G1
-        nuclear = float(np.sqrt(np.maximum(np.linalg.eigvalsh(penalised), 0.0)).sum())
-        return op, G1, nuclear
+        return op, G1, self._nuclear(penalised)
 
     def _sharp_tall(self, X, beta, it):
         """Tall case (F > 3P): S# of ``X: (F, 3P)`` through the ``3P x 3P`` Gram."""
@@ -450,9 +488,7 @@ class AdmmState:
             G1 = Z @ Z.T
             self.t_bases = gm.block_bases(G1, self.t_edges, self.N_t)
         penalised = Z - Z.mean(axis=0, keepdims=True) if self.centred else Z
-        nuclear = float(np.sqrt(np.maximum(np.linalg.eigvalsh(penalised.T @ penalised),
-                                           0.0)).sum())
-        return Z, G1, nuclear
+        return Z, G1, self._nuclear(penalised.T @ penalised)
 
     # sweep 2: S#, gap and Y1 ---------------------------------------------------------------------
     def _sweep_multipliers(self, beta, op=None, sharp=None):

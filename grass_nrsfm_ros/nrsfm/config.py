@@ -44,7 +44,7 @@ def spatial_off_reason(params, K_s, N_s, P, groups):
 
 def admm_settings(params, F, P, groups, nuclear, spatial):
     """The :class:`AdmmSettings` of a solve of ``F`` frames and ``P`` tracks with the norm
-    ``nuclear`` ('centred' or 'plain') and the spatial branch on or off."""
+    ``nuclear`` ('centred', 'plain' or 'weighted') and the spatial branch on or off."""
     K_s, K_t, N_s, N_t = sizes(params, F, P, groups)
     return AdmmSettings(
         gamma=params['gamma'] * np.sqrt(F * P), lambda1=params['lambda1'],
@@ -54,4 +54,5 @@ def admm_settings(params, F, P, groups, nuclear, spatial):
         beta0=params['beta0'], beta_max=params['beta_max'], warm_beta0=params['warm_beta0'],
         smoothness=params['smoothness'], spatial=spatial, temporal=params['temporal'],
         centred=nuclear == 'centred', random_state=params['random_state'],
-        max_iter=params['max_iter'], K_s=K_s, K_t=K_t, N_s=N_s, N_t=N_t)
+        max_iter=params['max_iter'], K_s=K_s, K_t=K_t, N_s=N_s, N_t=N_t,
+        weighted=nuclear == 'weighted')

@@ -18,12 +18,12 @@ class WarmStart:
 
     ``R: (F, 3, 3)`` rotations, ``S: (3F, P)`` camera-frame shapes (any translation, same units
     as W), ``known: (F,)`` bool frames whose R and S are given (default: all), ``groups: (P,)``
-    spatial labels, ``rotation_method``: 'dai' or 'rigid', how rotations that are not given are
-    estimated (None: the solver's ``rotations`` parameter; a method given skips the 'auto'
-    check, e.g. one a previous solve of overlapping frames chose). ``Y1: (3F, P)`` camera-frame
-    multipliers of the constraint S# = S (W's units; zero on frames not solved before) and
-    ``beta``: the penalty to resume at; both resume an earlier ADMM run (with S and R given
-    for every frame). Every field is optional.
+    spatial labels, ``rotation_method``: 'dai', 'op' or 'rigid', how rotations that are not
+    given are estimated (None: the solver's ``rotations`` parameter; a method given skips the
+    'auto' check, e.g. one a previous solve of overlapping frames chose). ``Y1: (3F, P)``
+    camera-frame multipliers of the constraint S# = S (W's units; zero on frames not solved
+    before) and ``beta``: the penalty to resume at; both resume an earlier ADMM run (with S
+    and R given for every frame). Every field is optional.
     """
     R: np.ndarray = None
     S: np.ndarray = None
@@ -57,7 +57,7 @@ class SolverReport:
     reprojection_rms: float = float('nan')       # RMS of W - RS in W's units
     reprojection_relative: float = float('nan')  # the same over the RMS of centred W
     warm_started_frames: int = 0
-    rotation_method: str = None                  # 'dai', 'rigid' or 'given' (init.R, all known)
+    rotation_method: str = None                  # 'dai', 'op', 'rigid' or 'given' (init.R)
     rotation_checked: bool = False               # the 'auto' check chose rotation_method
     inextensible: bool = False                   # inextensible depths replaced the solver's
     rotations_registered: bool = False           # R re-estimated from the refined shapes, kept
@@ -183,8 +183,8 @@ def check_init(init, F, P):
         raise InvalidInputError(f'init.beta must be a positive number; got {init.beta!r}')
     if (init.R is not None or init.S is not None) and not known.any():
         raise InvalidInputError('init.known marks no frame as known')
-    if init.rotation_method not in (None, 'dai', 'rigid'):
-        raise InvalidInputError("init.rotation_method must be None, 'dai' or 'rigid'; got "
+    if init.rotation_method not in (None, 'dai', 'op', 'rigid'):
+        raise InvalidInputError("init.rotation_method must be None, 'dai', 'op' or 'rigid'; got "
                                 f'{init.rotation_method!r}')
     return known, groups
 

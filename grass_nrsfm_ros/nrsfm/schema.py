@@ -147,8 +147,10 @@ SOLVER_PARAMS = (
     _number('lambda3', 0.1, 'Nuclear-norm weight on the spatial coefficients C_s.'),
     _number('lambda4', 0.1, 'Nuclear-norm weight on the temporal coefficients C_t.'),
     _auto_or_count('K_rot', "Rank used by the rotation step ('auto': chosen from the data)."),
-    _mode('rotations', 'auto', ('auto', 'dai', 'rigid'),
-          "Rotation estimate in cold solves: 'dai' (Dai et al. 2014), 'rigid' (Tomasi-Kanade), "
+    _mode('rotations', 'auto', ('auto', 'dai', 'op', 'rigid'),
+          "Rotation estimate in cold solves: 'dai' (Dai et al. 2014), 'op' (Dai's averaged per "
+          "frame with the corrective matrix's other triplets, Kumar & Van Gool 2022), 'rigid' "
+          '(Tomasi-Kanade), '
           "or 'auto': Dai's unless the rigid rotations give shapes whose S# nuclear norm is "
           f'{100 * ROTATION_MARGIN:.0f} % lower.'),
     _auto_or_count('K_s', "Number of spatial groups (trajectory subspaces); 'auto': from P."),
@@ -186,10 +188,12 @@ SOLVER_PARAMS = (
     Param('random_state', 0, None, 'Seed for the k-means++ grouping and the rotation step.',
           range=(0, INT_MAX), group='solver', number=int, nullable=True),
     # research switches: no default uses them
-    _mode('nuclear', 'plain', ('auto', 'centred', 'plain'),
+    _mode('nuclear', 'plain', ('auto', 'centred', 'plain', 'weighted'),
           "'plain': the nuclear norm acts on S# (the paper); 'centred': on S# less its mean row "
-          "(only the deformations are shrunk); 'auto': centred, but plain with the rigid "
-          'rotations, from given shapes, or when the centred solve takes the inextensible '
+          "(only the deformations are shrunk); 'weighted': Organic Priors' weighted partial "
+          'norm (the first singular value free, the others weighted by xi / (sigma_i + 1e-6) '
+          "from the pseudo-inverse shapes; gamma unused); 'auto': centred, but plain with the "
+          'rigid rotations, from given shapes, or when the centred solve takes the inextensible '
           'depths.', group='research'),
     Param('spatial', True, bool, 'Use the spatial Grassmann branch (C_s, xi_s, zeta_s); '
           'False: ablation.', group='research'),
