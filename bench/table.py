@@ -125,7 +125,7 @@ def streaming_table(doc):
 
 def live_table(doc):
     lines = ['| sequence | F x P | points (all frames) | points / windows after 1st model | '
-             'refined | windows | mapping CPU s / window (all tracks) | tracking ms p95 |',
+             "refined | windows | mapping CPU s / window (windows') | tracking ms p95 |",
              '|---|---|---|---|---|---|---|---|']
     for r in doc['rows']:
         after = (f'{fmt(r["e3d_points_after_first_model"])} / '

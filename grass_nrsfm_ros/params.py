@@ -49,9 +49,9 @@ NODE_PARAMS = (
           'previous frame starts a new sequence (all ids changed).', range=(4, 10000000)),
     Param('warm_start', 'resume', str,
           "What each window's solve takes from the previous window's solution on the "
-          "overlapping frames and tracks. 'resume': the ADMM resumes the previous window's "
-          "run: its shapes, multipliers and spatial groups, rotations by Dai's method refined "
-          'from the previous ones at the carried rank (no rank search, no rotation check). '
+          "overlapping frames and tracks. 'resume': its shapes and spatial groups, rotations by "
+          "Dai's method refined from the previous ones at the carried rank (no rank search, no "
+          "rotation check), the ADMM's penalty schedule from its start. "
           "'model': the groups and the rotation method (Dai's or rigid; checked again once "
           'half the frames are new); rotations are re-estimated over window + context and '
           "shapes start from the solver's own start. 'full': also the overlapping frames' "

@@ -34,16 +34,17 @@ first of a sequence) starts from the rigid factorisation (docs/decisions/0035, 0
 Warm start (``warm_start``), what a solve takes from the previous window's solution
 (docs/decisions/0037, 0038):
 
-* ``'model'`` (default): the spatial groups of the overlapping tracks (new tracks take their
+* ``'model'``: the spatial groups of the overlapping tracks (new tracks take their
   nearest old track's) and the rotation method the solver's check chose (Dai's or rigid),
   carried until the frames new since that check reach RECHECK_SHARE of the frames it was made
   on; rotations are re-estimated over the whole problem, shapes start from the solver's own.
 * ``'full'``: also the rotations of the overlapping frames (fixed) and their camera-frame
   shapes (:meth:`SlidingWindow._full_warm_start`).
 * ``'off'``: every window with context from the solver's own start.
-* ``'resume'``: the previous window's ADMM run resumed (:meth:`SlidingWindow._resume_start`):
-  shapes, multipliers and groups of the shared frames and tracks, rotations by Dai's method
-  refined from the previous ones at the carried rank (no rank search, no rotation check).
+* ``'resume'`` (default): the previous window's solution resumed
+  (:meth:`SlidingWindow._resume_start`): shapes and groups of the shared frames and tracks,
+  rotations by Dai's method refined from the previous ones at the carried rank (no rank
+  search, no rotation check), the solver's penalty schedule from its beta0.
 
 Alignment: a window's camera-frame shapes are defined up to the sign of depth (the orthographic
 reflection) and a depth offset; each window's depth is centred per frame and its sign chosen to
@@ -181,7 +182,6 @@ class Solution:
     groups: np.ndarray      # (P,) or None
     report: object          # the solver's report
     residual: float         # ||Wc - x,y rows of S|| / ||Wc||: relative reprojection residual
-    Y1: np.ndarray = None   # (3F, P) camera-frame ADMM multipliers, W's units (None: unknown)
     K_rot: int = None       # Dai's rank of the rotations (1: rigid), None: unknown
 
 
@@ -421,19 +421,14 @@ class SlidingWindow:
             raise WindowError(f'window {window.index}: the solver returned non-finite shapes or '
                               'rotations; nothing published')
         groups = getattr(result, 'groups', None)
-        Y1 = getattr(result, 'Y1', None)
         if keep is not None:
             labels = np.zeros(keep.size, dtype=int) if groups is None else groups
             S, groups = fill_dropped(S, labels, problem.W, keep)
-            if Y1 is not None:
-                Y1, kept = np.zeros_like(S), Y1
-                Y1[:, keep] = kept
         Z = as_frames(S, 3)[:, 2, :]
         Z -= Z.mean(axis=1, keepdims=True)
         if self.align_windows and self._depth_disagrees(problem, Z):
             S = flip_depth(S)
             R = DEPTH_FLIP @ R @ DEPTH_FLIP
-            Y1 = None if Y1 is None else flip_depth(Y1)
             Z = as_frames(S, 3)[:, 2, :]
         F = len(problem.stamps)
         uv = problem.W.reshape(F, 2, -1).transpose(0, 2, 1)
@@ -445,7 +440,7 @@ class SlidingWindow:
             self._rotation_check = (problem.sequence, report.rotation_method, problem.stamps) \
                 if full else None
         self._previous = Solution(window.sequence, problem.stamps, problem.ids, uv, S, R,
-                                  groups, report, residual, Y1, self._rank_of(report, init))
+                                  groups, report, residual, self._rank_of(report, init))
         self._count('solved')
         c = problem.n_context
         return self._publish(window, problem.ids, as_frames(Wc, 2)[c:], Z[c:])
@@ -465,8 +460,6 @@ class SlidingWindow:
         next window aligns to the flipped orientation."""
         p = self._previous
         p.S, p.R = flip_depth(p.S), DEPTH_FLIP @ p.R @ DEPTH_FLIP
-        if p.Y1 is not None:
-            p.Y1 = flip_depth(p.Y1)
 
     def _mapped_tracks(self, ids):
         """Indices ``(mapping_tracks,)`` (sorted) of the tracks ``ids: (P,)`` the solver sees,
@@ -555,7 +548,8 @@ class SlidingWindow:
         ``context_frames`` 0) starts from the rigid factorisation unless ``warm_start`` is
         'full' and it overlaps the previous solution; otherwise 'off' gives None (the solver's
         own start), 'model' the previous solution's spatial groups and rotation method, 'full'
-        its rotations and shapes too (:meth:`_full_warm_start`)."""
+        its rotations and shapes too (:meth:`_full_warm_start`), 'resume' those refined
+        (:meth:`_resume_start`)."""
         cls = self._warm_start_class or WarmStart
         ov = self._overlap(problem)
         self._resumed_rank = None
@@ -575,26 +569,20 @@ class SlidingWindow:
     def _resumable(self, problem, ov):
         """True if ``problem`` (with context) can resume the previous solution's run."""
         p = self._previous
-        return (ov is not None and problem.n_context > 0 and p.Y1 is not None
-                and p.K_rot is not None)
+        return ov is not None and problem.n_context > 0 and p.K_rot is not None
 
     def _resume_start(self, problem, Wc, ov, cls):
-        """WarmStart resuming the previous solution's ADMM run (warm_start 'resume'):
-        rotations by Dai's method refined from the previous ones (:meth:`_resume_rotations`),
-        shapes and spatial groups as :meth:`_full_warm_start` carries them, and the multipliers
-        of the shared frames and tracks (zero elsewhere). The penalty schedule starts again at
-        the solver's warm_beta0 (docs/decisions/0404)."""
-        fn, fo, tn, to = ov
-        p = self._previous
-        F, P = len(problem.stamps), problem.ids.size
-        known = np.zeros(F, dtype=bool)
+        """WarmStart resuming from the previous solution (warm_start 'resume'): rotations by
+        Dai's method refined from the previous ones (:meth:`_resume_rotations`), shapes and
+        spatial groups as :meth:`_full_warm_start` carries them, solved as a cold solve from
+        them (``resumed``; docs/decisions/0404)."""
+        fn = ov[0]
+        known = np.zeros(len(problem.stamps), dtype=bool)
         known[fn] = True
         start = self._full_warm_start(problem, Wc, ov, cls)
         R, self._resumed_rank = self._resume_rotations(problem.W, np.asarray(start.R), known,
-                                                       p.K_rot)
-        Y1 = np.zeros((F, 3, P))
-        Y1[np.ix_(fn, np.arange(3), tn)] = as_frames(p.Y1, 3)[np.ix_(fo, np.arange(3), to)]
-        return replace(start, R=R, known=np.ones(F, dtype=bool), Y1=Y1.reshape(3 * F, P))
+                                                       self._previous.K_rot)
+        return replace(start, R=R, known=np.ones(known.size, dtype=bool), resumed=True)
 
     @staticmethod
     def _resume_rotations(W, R0, known, K):
@@ -730,9 +718,8 @@ def subset_init(init, keep):
     if init is None or keep is None:
         return init
     S = None if init.S is None else np.asarray(init.S)[:, keep]
-    Y1 = None if init.Y1 is None else np.asarray(init.Y1)[:, keep]
     groups = None if init.groups is None else np.asarray(init.groups)[keep]
-    return replace(init, S=S, Y1=Y1, groups=groups)
+    return replace(init, S=S, groups=groups)
 
 
 def flip_depth(S):

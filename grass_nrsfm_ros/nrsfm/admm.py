@@ -187,9 +187,8 @@ class AdmmState:
     """ADMM variables of Algorithm 1 and one iteration, on ``Wn: (2F, P)``, ``R: (F, 3, 3)``
     from world-frame initial shapes ``S0: (F, 3, P)``; ``groups: (P,)`` initial spatial labels
     (None: k-means++ on S0, one group with the spatial branch off); ``warm``: S0 carries an
-    earlier solution (the warm beta0, no smoothness prior); ``Y1: (F, 3, P)`` world-frame
-    multipliers and ``beta`` resume an earlier run (default: zero multipliers, the beta0 of
-    the settings).
+    earlier solution (the warm beta0, no smoothness prior); ``beta``: the penalty to start at
+    instead (None: the settings' warm_beta0 or beta0).
 
     One iteration makes two sweeps over column blocks:
 
@@ -199,7 +198,7 @@ class AdmmState:
        the Gram in between, the gap ``max |S# - S|`` and ``Y1 += beta (S# - S)``.
     """
 
-    def __init__(self, Wn, R, S0, settings, groups=None, warm=False, Y1=None, beta=None):
+    def __init__(self, Wn, R, S0, settings, groups=None, warm=False, beta=None):
         F, P = R.shape[0], Wn.shape[1]
         s = settings
         labels = groups if groups is not None else (
@@ -212,8 +211,7 @@ class AdmmState:
         self.moves = 0
         self.S = S0[:, :, self.order].astype(self.dtype)
         self.Ssh = self.S.copy()
-        self.Y1 = (np.zeros_like(self.S) if Y1 is None
-                   else Y1[:, :, self.order].astype(self.dtype))
+        self.Y1 = np.zeros_like(self.S)
         self.s_bases = self._spatial_bases_exact()
         self.t_edges = gm.contiguous_blocks(F, self.K_t)
         G = np.zeros((F, F))
@@ -578,18 +576,12 @@ class AdmmState:
             self.data = float(np.vdot(resid, resid))
         return self.data
 
-    def multipliers_original_order(self):
-        """World-frame multipliers Y1 ``(F, 3, P)`` float64 in the input's column order."""
-        out = np.empty(self.Y1.shape)
-        out[:, :, self.order] = self.Y1
-        return out
-
     def S_world_original_order(self):
         """World-frame S ``(F, 3, P)`` in the input's column order; frees the iteration
-        buffers but Y1 (the state cannot iterate afterwards)."""
+        buffers (the state is spent afterwards)."""
         out = self.Ssh
         out[:, :, self.order] = self.S
-        self.X = self.S = self.Ssh = None
+        self.X = self.Y1 = self.S = self.Ssh = None
         return out
 
     def labels_original_order(self):

@@ -20,18 +20,17 @@ class WarmStart:
     as W), ``known: (F,)`` bool frames whose R and S are given (default: all), ``groups: (P,)``
     spatial labels, ``rotation_method``: 'dai', 'op' or 'rigid', how rotations that are not
     given are estimated (None: the solver's ``rotations`` parameter; a method given skips the
-    'auto' check, e.g. one a previous solve of overlapping frames chose). ``Y1: (3F, P)``
-    camera-frame multipliers of the constraint S# = S (W's units; zero on frames not solved
-    before) and ``beta``: the penalty to resume at; both resume an earlier ADMM run (with S
-    and R given for every frame). Every field is optional.
+    'auto' check, e.g. one a previous solve of overlapping frames chose). ``resumed``: the
+    shapes resume a previous window's solution, so the solve runs as a cold one from them (the
+    penalty schedule from beta0, not warm_beta0; the inextensible depths). Every field is
+    optional.
     """
     R: np.ndarray = None
     S: np.ndarray = None
     known: np.ndarray = None
     groups: np.ndarray = None
     rotation_method: str = None
-    Y1: np.ndarray = None
-    beta: float = None
+    resumed: bool = False
 
 
 @dataclass
@@ -84,9 +83,7 @@ class NRSfMResult:
     """``S: (3F, P)`` camera frame, ``R: (F, 3, 3)``, ``translation: (2F, 1)``,
     ``groups: (P,)`` spatial labels, ``blocks: (K_t + 1,)`` temporal block edges,
     ``C_s: (K_s, K_s)`` and ``C_t: (K_t, K_t)`` the self-expression coefficients at the end
-    (rows: the supplementary's convention, group i ~ sum_j C_ij group j); ``Y1: (3F, P)``
-    the camera-frame multipliers of S# = S and ``beta`` the penalty where the last ADMM run
-    ended (what a :class:`WarmStart` resumes from)."""
+    (rows: the supplementary's convention, group i ~ sum_j C_ij group j)."""
     S: np.ndarray
     R: np.ndarray
     translation: np.ndarray
@@ -95,8 +92,6 @@ class NRSfMResult:
     report: SolverReport
     C_s: np.ndarray = None
     C_t: np.ndarray = None
-    Y1: np.ndarray = None
-    beta: float = None
 
 
 @dataclass
@@ -145,10 +140,9 @@ class Problem:
         stays that of all tracks."""
         W = self.W[:, keep]
         S = None if self.init.S is None else np.asarray(self.init.S)[:, keep]
-        Y1 = None if self.init.Y1 is None else np.asarray(self.init.Y1)[:, keep]
         groups = None if self.groups is None else dense_labels(self.groups[keep])
-        return replace(self, W=W, Wn=centre(W)[0] / self.scale,
-                       init=replace(self.init, S=S, Y1=Y1), groups=groups)
+        return replace(self, W=W, Wn=centre(W)[0] / self.scale, init=replace(self.init, S=S),
+                       groups=groups)
 
     def with_rotations(self, R):
         """The problem solved afresh with the rotations ``R: (F, 3, 3)`` given for every
@@ -174,28 +168,14 @@ def check_init(init, F, P):
         validate_rotations(init.R, F, name='init.R')
     if init.S is not None:
         validate_shapes(init.S, n_frames=F, n_points=P, name='init.S')
-    if init.Y1 is not None:
-        if init.S is None or init.R is None or not known.all():
-            raise InvalidInputError('init.Y1 resumes a run: it needs init.S and init.R given for '
-                                    'every frame')
-        validate_shapes(init.Y1, n_frames=F, n_points=P, name='init.Y1')
-    if init.beta is not None and not (np.isfinite(init.beta) and init.beta > 0):
-        raise InvalidInputError(f'init.beta must be a positive number; got {init.beta!r}')
+    if init.resumed and (init.S is None or init.R is None or not known.all()):
+        raise InvalidInputError('init.resumed needs init.S and init.R given for every frame')
     if (init.R is not None or init.S is not None) and not known.any():
         raise InvalidInputError('init.known marks no frame as known')
     if init.rotation_method not in (None, 'dai', 'op', 'rigid'):
         raise InvalidInputError("init.rotation_method must be None, 'dai', 'op' or 'rigid'; got "
                                 f'{init.rotation_method!r}')
     return known, groups
-
-
-def initial_multipliers(problem, R):
-    """World-frame multipliers ``(F, 3, P)`` of a resumed run (unit-RMS units), or None."""
-    if problem.init.Y1 is None:
-        return None
-    F, P = R.shape[0], problem.Wn.shape[1]
-    cam = np.asarray(problem.init.Y1, dtype=np.float64).reshape(F, 3, P) / problem.scale
-    return R.transpose(0, 2, 1) @ cam
 
 
 def dense_labels(groups):

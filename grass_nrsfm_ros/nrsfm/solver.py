@@ -17,7 +17,7 @@ from threadpoolctl import threadpool_limits
 from . import config
 from .admm import AdmmRun, AdmmState, run, Timer
 from .measurement import from_frames, InvalidInputError
-from .problem import initial_multipliers, initial_shapes, NRSfMResult, Problem, SolverReport
+from .problem import initial_shapes, NRSfMResult, Problem, SolverReport
 from .schema import SOLVER_PARAMS, SOLVER_SPECS, validate_solver
 from .stages import fill, refinement, registration, rotation_check, rotations, thinning
 
@@ -139,22 +139,13 @@ def shape_pass(problem, R, params, report, timer=None, progress=None, reason='sh
         t = timer.add('inextensible', t)
 
     labels = state.labels_original_order()
-    Y1 = camera_multipliers(state, R, solved.scale)
     if fill.applies(keep):
         report.stages.append(fill.NAME)
         S, labels = fill.run(S, labels, problem.W, keep, report)
-        Y1, kept = np.zeros_like(S), Y1
-        Y1[:, keep] = kept
         timer.add('thinning', t)
     return NRSfMResult(S=S, R=R, translation=problem.translation, groups=labels,
                        blocks=state.t_edges.copy(), report=report, C_s=state.C_s.copy(),
-                       C_t=state.C_t.copy(), Y1=Y1, beta=float(state.beta))
-
-
-def camera_multipliers(state, R, scale):
-    """The multipliers of S# = S of a spent AdmmState as ``(3F, P)`` camera frame, in the
-    units of W (``scale``: the problem's)."""
-    return from_frames(np.matmul(R, state.multipliers_original_order()) * scale)
+                       C_t=state.C_t.copy())
 
 
 def first_nuclear(nuclear, report, problem):
@@ -178,8 +169,7 @@ def admm_solve(problem, R, params, spatial, nuclear, report, timer, progress, re
     F, P = R.shape[0], problem.Wn.shape[1]
     settings = config.admm_settings(params, F, P, problem.groups, nuclear, spatial)
     state = AdmmState(problem.Wn, R, initial_shapes(problem, R), settings, problem.groups,
-                      warm=problem.warm, Y1=initial_multipliers(problem, R),
-                      beta=problem.init.beta)
+                      warm=problem.warm, beta=settings.beta0 if problem.init.resumed else None)
     t = timer.add('initialisation', t)
     record = AdmmRun()
     report.iterations, report.objective, report.gaps = 0, record.objective, record.gaps

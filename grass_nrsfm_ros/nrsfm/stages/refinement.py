@@ -35,10 +35,10 @@ class Check:
 
 
 def applies(problem, params):
-    """Cold and resumed solves (a window warm-started with shapes alone keeps its carried
-    depths), dense tracks unless 'always'."""
+    """Cold and resumed solves (a window warm-started with shapes keeps its carried depths),
+    dense tracks unless 'always'."""
     mode = params['inextensible']
-    if mode == 'never' or (problem.warm and problem.init.Y1 is None):
+    if mode == 'never' or (problem.warm and not problem.init.resumed):
         return False
     return mode == 'always' or problem.P >= INEXTENSIBLE_MIN_POINTS
 
