@@ -32,7 +32,7 @@ WARM_STARTS = ('model', 'full', 'off')
 WARM_ROTATIONS = ('refine', 'fit', 'solver')
 #: values of ``output`` and ``mapping``
 OUTPUTS = ('live', 'windows')
-MAPPINGS = ('worker', 'inline')
+MAPPINGS = ('worker', 'inline', 'process')
 #: values of ``input_reliability``
 INPUT_RELIABILITIES = ('auto', 'best_effort', 'reliable')
 #: the fewest frames a window can have
@@ -78,7 +78,9 @@ NODE_PARAMS = (
           "Where windows are solved: 'worker' (a thread beside the tracking: every frame is "
           "published at once, refined when its window is solved); 'inline' (in the input "
           'callback, before the next frame: the output equals the offline tools for the same '
-          'input, but tracking waits for each solve).', choices=MAPPINGS),
+          "input, but tracking waits for each solve); 'process' (a child process: the "
+          "mapping's Python no longer shares the tracking's GIL; frames and models cross "
+          'between the processes).', choices=MAPPINGS),
     Param('mapping_tracks', 5000, int,
           'Most tracks a window is solved on (a fixed subset by track id); the others are '
           'filled in from their neighbours. 0: all tracks.', range=(0, 10000000)),
