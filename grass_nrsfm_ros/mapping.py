@@ -39,6 +39,9 @@ from grass_nrsfm_ros.live import solve_window
 from grass_nrsfm_ros.pipeline import make_windows, Window, window_matrix, WindowError
 
 START_METHOD = 'spawn'
+#: the child's niceness above the parent's: on a busy machine the scheduler serves the
+#: tracking (and the publishing) first, the mapping with what is left
+MAPPING_NICE = 5
 STOP_GRACE_S = 1.0           # close() waits this long for the child, then terminates it
 
 
@@ -209,9 +212,11 @@ class _Child:
 
 
 def child_main(config, solver_factory, warm_start_class, output, inbox, outbox, cancel,
-               blas_threads):
+               blas_threads, nice=MAPPING_NICE):
     """The child process: a SlidingWindow like the parent's, fed by ``inbox``; results to
     ``outbox`` (a Connection). Exits on 'stop' or when the parent dies."""
+    if nice:
+        os.nice(nice)
     threadpool_limits(limits=blas_threads)
     windows = make_windows(config, solver_factory, warm_start_class=warm_start_class)
     child = _Child(windows, output, inbox, outbox, cancel)
@@ -232,15 +237,17 @@ class MappingProcess:
 
     ``on_message(message)`` is called on the receiver thread for each message from the child
     (``'solved'``, ``'failed'``, ``'dropped'``); ``on_exit(exitcode)`` when the child died
-    unasked (it is restarted, at most ``max_restarts`` times). ``config``, ``solver_factory``
+    unasked (it is restarted, at most ``max_restarts`` times); ``nice``: the child's niceness
+    increment (MAPPING_NICE). ``config``, ``solver_factory``
     and ``warm_start_class`` are those of :func:`grass_nrsfm_ros.pipeline.make_windows` and
     must pickle (module-level classes).
     """
 
     def __init__(self, config, solver_factory=None, warm_start_class=None, *, output='live',
-                 on_message=None, on_exit=None, blas_threads=1, max_restarts=5):
+                 on_message=None, on_exit=None, blas_threads=1, max_restarts=5,
+                 nice=MAPPING_NICE):
         self._args = (dict(config), solver_factory, warm_start_class, output)
-        self._blas_threads = int(blas_threads)
+        self._blas_threads, self._nice = int(blas_threads), int(nice)
         self._on_message = on_message or (lambda message: None)
         self._on_exit = on_exit or (lambda code: None)
         self._ctx = multiprocessing.get_context(START_METHOD)
@@ -258,7 +265,8 @@ class MappingProcess:
         self._cancel = self._ctx.Event()
         self.process = self._ctx.Process(
             target=child_main, name='grass_nrsfm_mapping', daemon=True,
-            args=(*self._args, self._inbox, send, self._cancel, self._blas_threads))
+            args=(*self._args, self._inbox, send, self._cancel, self._blas_threads,
+                  self._nice))
         self.process.start()
         send.close()
         self._receive = receive
