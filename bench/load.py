@@ -2,9 +2,10 @@
 ``seconds``, over DDS from this process to the node in its own process (isolated domain).
 
 Reports the node's memory (RSS of the node and its children, a mapping process, sampled every
-second), frames sent / published / skipped (the node's diagnostics), the accounting (every message received is dropped, published, counted as
-lost (skipped windows) or pending: ``frames unaccounted`` must be 0) and the recording's
-completeness (messages in the recorded bag vs sent and published).
+second), frames sent / published / skipped (the node's diagnostics), the accounting (every
+message received is dropped, published, counted as lost (skipped windows) or pending:
+``frames unaccounted`` must be 0) and the recording's completeness (messages in the recorded
+bag vs sent and published).
 
     python -m bench.load                      # 10 min, 30 Hz, 30,000 points, the node as shipped
     python -m bench.load --seconds 20 --points 2000 --solver rigid
@@ -139,10 +140,11 @@ def memory_figures(samples, warm_frames, warm_solves=2):
 
 
 def run(seconds=600.0, points=30_000, rate=30.0, solver='rigid', window=30, stride=10,
-        record=True, tmp=None, log=print, depth=10, context=None, mapping=None):
+        record=True, tmp=None, log=print, depth=10, context=None, mapping=None, settle=None):
     """Run the load; return the figures (a dict). ``context``: the node's context_frames
     (default: 0 for the rigid stand-in, as in the tests; the node's default for grassmann);
-    ``mapping``: the node's mapping parameter (None: its default)."""
+    ``mapping``: the node's mapping parameter (None: its default); ``settle``: seconds to wait
+    for the node to account for every message after the stream (None: 120 rigid, 600)."""
     tmp = Path(tmp or tempfile.mkdtemp(prefix='grass_load_'))
     env = isolated_env(tmp)
     launch = rosutil.RIGID_LAUNCH if solver == 'rigid' else DEFAULT_LAUNCH
@@ -183,7 +185,8 @@ def run(seconds=600.0, points=30_000, rate=30.0, solver='rigid', window=30, stri
                     log(f'{rss[-1][0]:.0f} s: sent {k + 1}, node RSS {rss[-1][1]:.0f} MB, '
                         f'received {rss[-1][2]}, solved {rss[-1][3]}')
         send_seconds = time.monotonic() - start
-        counts = feeder.accounted(n_total, timeout=120 if solver == 'rigid' else 600)
+        settle = settle or (120 if solver == 'rigid' else 600)
+        counts = feeder.accounted(n_total, timeout=settle)
         rss.append(sample(start, proc, feeder))
         received_points = feeder.points_received
         code = rosutil.stop(proc, signal.SIGINT, timeout=60)
@@ -193,15 +196,17 @@ def run(seconds=600.0, points=30_000, rate=30.0, solver='rigid', window=30, stri
                    sends_late_by_more_than_a_period=late, exit_code=code,
                    points_clouds_received_by_subscriber=received_points,
                    latency_ms=latency_figures(feeder.latencies))
+    rss = [r for r in rss if r[1] is not None]
     if counts is None:
         figures['error'] = 'diagnostics never settled'
         figures['last_diagnostics'] = feeder.diagnostic_values()
+        figures['rss_mb'] = memory_figures(rss, window + context)
         return figures
     figures.update(counts)
     figures['frames unaccounted'] = n_total - (counts['dropped messages'] +
                                                counts['frames published'] +
                                                counts['frames lost'] + counts['frames pending'])
-    figures['rss_mb'] = memory_figures([r for r in rss if r[1] is not None], window + context)
+    figures['rss_mb'] = memory_figures(rss, window + context)
     if record:
         topics = bag.topics(tmp / 'recording')
         figures['recorded'] = {t.rsplit('/', 1)[-1]: n for t, (_, n) in topics.items()}
@@ -232,10 +237,13 @@ def main(argv=None):
     parser.add_argument('--no-record', dest='record', action='store_false')
     parser.add_argument('--mapping', choices=MAPPINGS, default=None,
                         help="the node's mapping parameter (default: the node's)")
+    parser.add_argument('--settle', type=float, default=None,
+                        help='seconds to wait for the node to account for every message '
+                        '(default 120 rigid, 600 grassmann)')
     parser.add_argument('--key', default='load', help='key in reliability.json (load)')
     args = parser.parse_args(argv)
     figures = run(args.seconds, args.points, args.rate, args.solver, args.window, args.stride,
-                  args.record, context=args.context, mapping=args.mapping)
+                  args.record, context=args.context, mapping=args.mapping, settle=args.settle)
     save(figures, args.key)
     print(json.dumps({k: v for k, v in figures.items() if k != 'rss_mb'}, indent=1))
     print('rss_mb', {k: v for k, v in figures.get('rss_mb', {}).items() if k != 'samples'})

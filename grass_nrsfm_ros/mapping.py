@@ -25,6 +25,7 @@ and every newer frame) and solves only the newest window waiting, as the worker 
 A child that dies is reported (``on_exit``) and restarted with an empty store: windows naming
 frames it lacks fail with a clear message until new frames fill it.
 """
+import ctypes
 from dataclasses import dataclass
 import multiprocessing
 from multiprocessing.connection import wait
@@ -43,6 +44,21 @@ START_METHOD = 'spawn'
 #: tracking (and the publishing) first, the mapping with what is left
 MAPPING_NICE = 5
 STOP_GRACE_S = 1.0           # close() waits this long for the child, then terminates it
+#: allocations from this size on are mmapped (returned to the system when freed): a fixed
+#: glibc threshold, see :func:`fix_mmap_threshold`
+MMAP_THRESHOLD = 1 << 20
+M_MMAP_THRESHOLD = -3        # glibc's mallopt parameter
+
+
+def fix_mmap_threshold(size=MMAP_THRESHOLD):
+    """Fix glibc's mmap threshold at ``size`` bytes; True if set (False: not glibc). glibc's
+    dynamic threshold rises to the size of the largest mmapped block freed (up to 32 MB), so
+    after a solve frees its arrays the next ones of up to that size stay in the threads'
+    heaps, which fragment and keep the memory."""
+    try:
+        return bool(ctypes.CDLL(None).mallopt(M_MMAP_THRESHOLD, int(size)))
+    except (OSError, AttributeError):
+        return False
 
 
 class SolveCancelled(Exception):
@@ -217,6 +233,7 @@ def child_main(config, solver_factory, warm_start_class, output, inbox, outbox, 
     ``outbox`` (a Connection). Exits on 'stop' or when the parent dies."""
     if nice:
         os.nice(nice)
+    fix_mmap_threshold()
     threadpool_limits(limits=blas_threads)
     windows = make_windows(config, solver_factory, warm_start_class=warm_start_class)
     child = _Child(windows, output, inbox, outbox, cancel)

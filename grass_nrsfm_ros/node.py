@@ -52,7 +52,7 @@ from visualization_msgs.msg import Marker
 from grass_nrsfm_ros import cloud, mesh, params, qos as offered_qos, rates
 from grass_nrsfm_ros.bag import Recorder
 from grass_nrsfm_ros.live import make_pipeline
-from grass_nrsfm_ros.mapping import MappingProcess
+from grass_nrsfm_ros.mapping import fix_mmap_threshold, MappingProcess
 from grass_nrsfm_ros.marker import mesh_marker
 from grass_nrsfm_ros.pipeline import FrameError, WindowError
 
@@ -649,6 +649,7 @@ class ReconstructionNode(Node):
 def main(args=None, *, solver_factory=None, warm_start_class=None):
     """Run the node until Ctrl-C / SIGTERM; returns the exit code (2: invalid parameters)."""
     sys.setswitchinterval(GIL_SWITCH_S)
+    fix_mmap_threshold()
     # Ctrl-C / SIGTERM set a flag that the spin loop reads (at most SPIN_PERIOD_S later).
     # rclpy's own handlers shut the context down from C at once, racing the start-up and the
     # executor: a signal just after the start-up line ended in a traceback and exit code 1
