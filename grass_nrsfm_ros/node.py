@@ -13,9 +13,11 @@ one worker thread for solves (mapping), publishing, logging, recording.
 
 Threading: a SingleThreadedExecutor runs the input subscription (which tracks and publishes
 each frame at once) and the housekeeping (frames stay in order); a closed window is handed to
-one worker thread (the mapping) and the callback returns at once. One executor thread, not a
-MultiThreadedExecutor (docs/decisions: the node's executor). While a solve runs, newer windows
-replace the one waiting (counted as dropped windows): the mapping skips to the newest window.
+the mapping and the callback returns at once: a child process (``mapping: process``,
+:mod:`grass_nrsfm_ros.mapping`, whose receiver thread publishes its results here) or one
+worker thread (``worker``). One executor thread, not a MultiThreadedExecutor (docs/decisions:
+the node's executor). While a solve runs, newer windows replace the one waiting (counted as
+dropped windows): the mapping skips to the newest window.
 
 Start: ``ros2 run grass_nrsfm_ros node --ros-args ...``, ``grass-nrsfm node --ros-args ...``
 or ``python -m grass_nrsfm_ros.node --ros-args ...``.

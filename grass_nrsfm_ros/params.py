@@ -32,7 +32,7 @@ WARM_STARTS = ('model', 'full', 'off')
 WARM_ROTATIONS = ('refine', 'fit', 'solver')
 #: values of ``output`` and ``mapping``
 OUTPUTS = ('live', 'windows')
-MAPPINGS = ('worker', 'inline', 'process')
+MAPPINGS = ('process', 'worker', 'inline')
 #: values of ``input_reliability``
 INPUT_RELIABILITIES = ('auto', 'best_effort', 'reliable')
 #: the fewest frames a window can have
@@ -74,13 +74,13 @@ NODE_PARAMS = (
           "shape model and published on points at once; each solved window's frames follow on "
           "points/refined. 'windows': frames are published on points only when their window is "
           'solved (the sliding-window behaviour).', choices=OUTPUTS),
-    Param('mapping', 'worker', str,
-          "Where windows are solved: 'worker' (a thread beside the tracking: every frame is "
-          "published at once, refined when its window is solved); 'inline' (in the input "
+    Param('mapping', 'process', str,
+          "Where windows are solved: 'process' (a child process beside the tracking, at a "
+          'lower CPU priority: every frame is published at once, refined when its window is '
+          "solved; frames and models cross between the processes); 'worker' (a thread of the "
+          "node: the mapping's Python shares the tracking's GIL); 'inline' (in the input "
           'callback, before the next frame: the output equals the offline tools for the same '
-          "input, but tracking waits for each solve); 'process' (a child process: the "
-          "mapping's Python no longer shares the tracking's GIL; frames and models cross "
-          'between the processes).', choices=MAPPINGS),
+          'input, but tracking waits for each solve).', choices=MAPPINGS),
     Param('mapping_tracks', 5000, int,
           'Most tracks a window is solved on (a fixed subset by track id); the others are '
           'filled in from their neighbours. 0: all tracks.', range=(0, 10000000)),
