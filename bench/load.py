@@ -203,6 +203,7 @@ def run(seconds=600.0, points=30_000, rate=30.0, solver='rigid', window=30, stri
         figures['rss_mb'] = memory_figures(rss, window + context)
         return figures
     figures.update(counts)
+    figures['last_diagnostics'] = feeder.diagnostic_values()
     figures['frames unaccounted'] = n_total - (counts['dropped messages'] +
                                                counts['frames published'] +
                                                counts['frames lost'] + counts['frames pending'])

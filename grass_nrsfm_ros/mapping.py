@@ -218,8 +218,7 @@ class _Child:
         figures = dict(solve_seconds=time.monotonic() - started,
                        iterations=getattr(report, 'iterations', ''),
                        reprojection_residual=previous.residual,
-                       tracks_thinned=getattr(report, 'thinned_points', ''),
-                       context_frames_solved=len(window.context))
+                       tracks_thinned=getattr(report, 'thinned_points', ''))
         return ('solved', spec, tuple(results), model, figures)
 
     def _cancel_if_stopping(self, iteration, report):
@@ -272,8 +271,7 @@ class MappingProcess:
         self._closing = False
         self.outstanding = 0            # windows submitted, not yet answered
         self.restarts, self.max_restarts = 0, int(max_restarts)
-        self.pid = None
-        self._ready = threading.Event()
+        self.pid = None                 # the child's, once it has started
         self._start()
 
     def _start(self):
@@ -294,10 +292,6 @@ class MappingProcess:
     @property
     def alive(self):
         return self.process is not None and self.process.is_alive()
-
-    def wait_ready(self, timeout):
-        """True once the child has started (imported, its SlidingWindow built)."""
-        return self._ready.wait(timeout)
 
     # -- tracking thread ------------------------------------------------------------------------
     def add_frame(self, sequence, frame, depth=None):
@@ -344,11 +338,14 @@ class MappingProcess:
     def _handle(self, message):
         if message[0] == 'ready':
             self.pid = message[1]
-            self._ready.set()
             return
         with self._lock:
             self.outstanding = max(0, self.outstanding - 1)
-        self._on_message(message)
+        try:
+            self._on_message(message)
+        except Exception:                   # the receiver must go on (the node tearing down)
+            if not self._closing:
+                traceback.print_exc()
 
     def _restart(self, exitcode):
         """The child died unasked: report it, start a fresh one (its windows in flight are
@@ -363,7 +360,7 @@ class MappingProcess:
             self.process = None
             self._on_exit(exitcode, False)
             return
-        self._ready.clear()
+        self.pid = None
         self._on_exit(exitcode, True)
         self._start()
 

@@ -467,6 +467,8 @@ class ReconstructionNode(Node):
         """A message of the mapping process (its receiver thread): a solved window is taken
         as the next model and published, a failure or a skipped window counted and logged."""
         kind, spec = message[0], message[1]
+        if self._stopping.is_set():
+            return
         if kind == 'dropped':
             if message[2] == 'skipped':
                 self._counts['dropped_windows'] += 1
@@ -592,7 +594,8 @@ class ReconstructionNode(Node):
         if self.mapper is None:
             return {}
         p95 = np.percentile(self._handovers, 95) if self._handovers else None
-        return {'mapping process': self.mapper.pid if self.mapper.alive else 'not running',
+        return {'mapping process': (self.mapper.pid or 'starting') if self.mapper.alive
+                else 'not running',
                 'mapping hand-over p95 ms': '' if p95 is None else f'{1e3 * p95:.3f}',
                 'mapping restarts': self._counts['mapping_restarts']}
 
