@@ -11,9 +11,10 @@
   its cloud (p50 / p95 / max), e3D of the received clouds on all frames.
 
     python -m bench --only live [--full]
-    python -m bench.live --node [--points 10000] [--busy]
+    python -m bench.live --node [--points 10000] [--busy] [--mapping process]
 
-Results: ``bench/results/live.json`` (suite) and ``live_node.json`` (``--node``).
+Results: ``bench/results/live.json`` (suite) and ``live_node.json`` (``--node``; keyed by
+points, ``_busy``, and ``_<mapping>`` when ``--mapping`` is given).
 """
 import argparse
 import json
@@ -32,7 +33,7 @@ from grass_nrsfm_ros.live import LivePipeline, reconstruct_live
 from grass_nrsfm_ros.nrsfm.faces import make_face_sequence
 from grass_nrsfm_ros.nrsfm.measurement import as_frames
 from grass_nrsfm_ros.nrsfm.metrics import e3d
-from grass_nrsfm_ros.params import defaults
+from grass_nrsfm_ros.params import defaults, MAPPINGS
 from grass_nrsfm_ros.pipeline import default_solver_factory, SlidingWindow
 from . import common
 from .streaming import accuracy_sequences
@@ -189,21 +190,46 @@ def node_run(points=10_000, rate=30.0, busy=False, extra_args=()):
     return figures
 
 
+def median_run(runs):
+    """The run of median p95 latency among ``runs`` (figures dicts), with every run's
+    p50 / p95 / max latency under ``runs``."""
+    chosen = sorted(runs, key=lambda r: r['latency_ms_p95'])[len(runs) // 2]
+    keys = ('latency_ms_p50', 'latency_ms_p95', 'latency_ms_max', 'frames_received')
+    return {**chosen, 'runs': [{k: r[k] for k in keys} for r in runs]}
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('--node', action='store_true', help='the node over DDS (else offline)')
     parser.add_argument('--points', type=int, default=10_000)
     parser.add_argument('--rate', type=float, default=30.0)
     parser.add_argument('--busy', action='store_true', help='keep the other core busy')
+    parser.add_argument('--mapping', default=None,
+                        help="the node's mapping parameter, or several (worker,process) run in "
+                        "turn (default: the node's; given, it names the result: "
+                        '10000_busy_process)')
+    parser.add_argument('--repeat', type=int, default=1,
+                        help='runs of each mapping (in turn); the median p95 run is kept')
     args = parser.parse_args(argv)
     if not args.node:
         from . import __main__
         return __main__.main(['--only', 'live'])
-    figures = node_run(args.points, args.rate, args.busy)
+    mappings = args.mapping.split(',') if args.mapping else [defaults()['mapping']]
+    if not set(mappings) <= set(MAPPINGS):
+        parser.error(f'--mapping: one or more of {MAPPINGS}')
+    runs = {m: [] for m in mappings}
+    for _ in range(args.repeat):
+        for mapping in mappings:
+            figures = node_run(args.points, args.rate, args.busy,
+                               extra_args=('-p', f'mapping:={mapping}'))
+            runs[mapping].append(dict(figures, mapping=mapping))
     path = common.RESULTS / 'live_node.json'
     old = json.loads(path.read_text()) if path.exists() else {}
-    old[f"{args.points}{'_busy' if args.busy else ''}"] = {
-        'environment': common.environment(), **common.jsonable(figures)}
+    for mapping, done in runs.items():
+        suffix = '' if args.mapping is None else f'_{mapping}'
+        figures = median_run(done) if len(done) > 1 else done[0]
+        old[f"{args.points}{'_busy' if args.busy else ''}{suffix}"] = {
+            'environment': common.environment(), **common.jsonable(figures)}
     path.write_text(json.dumps(old, indent=1, sort_keys=True) + '\n')
     return 0
 

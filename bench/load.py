@@ -1,13 +1,15 @@
 """Sustained load on the node: a ``rate`` Hz stream of ``points``-point tracks clouds for
 ``seconds``, over DDS from this process to the node in its own process (isolated domain).
 
-Reports the node's memory (RSS sampled every second), frames sent / published / skipped (the
-node's diagnostics), the accounting (every message received is dropped, published, counted as
-lost (skipped windows) or pending: ``frames unaccounted`` must be 0) and the recording's
-completeness (messages in the recorded bag vs sent and published).
+Reports the node's memory (RSS of the node and its children, a mapping process, sampled every
+second), frames sent / published / skipped (the node's diagnostics), the accounting (every
+message received is dropped, published, counted as lost (skipped windows) or pending:
+``frames unaccounted`` must be 0) and the recording's completeness (messages in the recorded
+bag vs sent and published).
 
     python -m bench.load                      # 10 min, 30 Hz, 30,000 points, the node as shipped
     python -m bench.load --seconds 20 --points 2000 --solver rigid
+    python -m bench.load --seconds 120 --mapping process --key load_2min_process
 
 ``--solver grassmann`` (default) runs the node as shipped (GrassmannNRSfM, 60 context frames);
 ``rigid`` injects the rigid solver of test/doubles.py without context frames (the node and
@@ -30,7 +32,7 @@ from std_msgs.msg import Header
 from grass_nrsfm_ros import bag, cloud
 from grass_nrsfm_ros.nrsfm.measurement import as_frames
 from grass_nrsfm_ros.nrsfm.synthetic import make_sequence
-from grass_nrsfm_ros.params import all_params
+from grass_nrsfm_ros.params import all_params, MAPPINGS
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / 'test'))          # the node-over-DDS helpers of the tests
@@ -62,10 +64,31 @@ def rss_mb(pid):
     return None
 
 
+def children(pid):
+    """Pids of the child processes of ``pid`` (a mapping process), from /proc."""
+    out = []
+    try:
+        for task in os.listdir(f'/proc/{pid}/task'):
+            with open(f'/proc/{pid}/task/{task}/children') as f:
+                out += [int(c) for c in f.read().split()]
+    except OSError:
+        pass
+    return out
+
+
+def tree_rss_mb(pid):
+    """RSS in MB of process ``pid`` plus its children (the node and its mapping process), or
+    None once it has gone."""
+    own = rss_mb(pid)
+    if own is None:
+        return None
+    return own + sum(rss_mb(c) or 0.0 for c in children(pid))
+
+
 def sample(start, proc, feeder):
-    """``(t_s, node RSS MB, messages received, windows solved)`` now."""
+    """``(t_s, RSS MB of the node and its children, messages received, windows solved)``."""
     values = feeder.diagnostic_values()
-    return (round(time.monotonic() - start, 1), rss_mb(proc.pid),
+    return (round(time.monotonic() - start, 1), tree_rss_mb(proc.pid),
             int(values.get('messages received', 0)), int(values.get('windows solved', 0)))
 
 
@@ -117,9 +140,11 @@ def memory_figures(samples, warm_frames, warm_solves=2):
 
 
 def run(seconds=600.0, points=30_000, rate=30.0, solver='rigid', window=30, stride=10,
-        record=True, tmp=None, log=print, depth=10, context=None):
+        record=True, tmp=None, log=print, depth=10, context=None, mapping=None, settle=None):
     """Run the load; return the figures (a dict). ``context``: the node's context_frames
-    (default: 0 for the rigid stand-in, as in the tests; the node's default for grassmann)."""
+    (default: 0 for the rigid stand-in, as in the tests; the node's default for grassmann);
+    ``mapping``: the node's mapping parameter (None: its default); ``settle``: seconds to wait
+    for the node to account for every message after the stream (None: 120 rigid, 600)."""
     tmp = Path(tmp or tempfile.mkdtemp(prefix='grass_load_'))
     env = isolated_env(tmp)
     launch = rosutil.RIGID_LAUNCH if solver == 'rigid' else DEFAULT_LAUNCH
@@ -128,6 +153,8 @@ def run(seconds=600.0, points=30_000, rate=30.0, solver='rigid', window=30, stri
             p.default for p in all_params() if p.name == 'context_frames')
     args = ['-p', f'window_size:={window}', '-p', f'window_stride:={stride}',
             '-p', f'context_frames:={context}']
+    if mapping is not None:
+        args += ['-p', f'mapping:={mapping}']
     if record:
         args += ['-p', f'record_path:={tmp}/recording']
     messages = clouds(points)
@@ -158,25 +185,29 @@ def run(seconds=600.0, points=30_000, rate=30.0, solver='rigid', window=30, stri
                     log(f'{rss[-1][0]:.0f} s: sent {k + 1}, node RSS {rss[-1][1]:.0f} MB, '
                         f'received {rss[-1][2]}, solved {rss[-1][3]}')
         send_seconds = time.monotonic() - start
-        counts = feeder.accounted(n_total, timeout=120 if solver == 'rigid' else 600)
+        settle = settle or (120 if solver == 'rigid' else 600)
+        counts = feeder.accounted(n_total, timeout=settle)
         rss.append(sample(start, proc, feeder))
         received_points = feeder.points_received
         code = rosutil.stop(proc, signal.SIGINT, timeout=60)
     figures = dict(seconds=seconds, points=points, rate=rate, solver=solver, window=window,
-                   stride=stride, context_frames=context, sent=n_total,
+                   stride=stride, context_frames=context, sent=n_total, mapping=mapping,
                    send_seconds=round(send_seconds, 1),
                    sends_late_by_more_than_a_period=late, exit_code=code,
                    points_clouds_received_by_subscriber=received_points,
                    latency_ms=latency_figures(feeder.latencies))
+    rss = [r for r in rss if r[1] is not None]
     if counts is None:
         figures['error'] = 'diagnostics never settled'
         figures['last_diagnostics'] = feeder.diagnostic_values()
+        figures['rss_mb'] = memory_figures(rss, window + context)
         return figures
     figures.update(counts)
+    figures['last_diagnostics'] = feeder.diagnostic_values()
     figures['frames unaccounted'] = n_total - (counts['dropped messages'] +
                                                counts['frames published'] +
                                                counts['frames lost'] + counts['frames pending'])
-    figures['rss_mb'] = memory_figures([r for r in rss if r[1] is not None], window + context)
+    figures['rss_mb'] = memory_figures(rss, window + context)
     if record:
         topics = bag.topics(tmp / 'recording')
         figures['recorded'] = {t.rsplit('/', 1)[-1]: n for t, (_, n) in topics.items()}
@@ -205,10 +236,15 @@ def main(argv=None):
     parser.add_argument('--window', type=int, default=30)
     parser.add_argument('--stride', type=int, default=10)
     parser.add_argument('--no-record', dest='record', action='store_false')
+    parser.add_argument('--mapping', choices=MAPPINGS, default=None,
+                        help="the node's mapping parameter (default: the node's)")
+    parser.add_argument('--settle', type=float, default=None,
+                        help='seconds to wait for the node to account for every message '
+                        '(default 120 rigid, 600 grassmann)')
     parser.add_argument('--key', default='load', help='key in reliability.json (load)')
     args = parser.parse_args(argv)
     figures = run(args.seconds, args.points, args.rate, args.solver, args.window, args.stride,
-                  args.record, context=args.context)
+                  args.record, context=args.context, mapping=args.mapping, settle=args.settle)
     save(figures, args.key)
     print(json.dumps({k: v for k, v in figures.items() if k != 'rss_mb'}, indent=1))
     print('rss_mb', {k: v for k, v in figures.get('rss_mb', {}).items() if k != 'samples'})

@@ -99,7 +99,11 @@ class LivePipeline:
         self._residuals = deque(maxlen=RESIDUAL_BASELINE)   # of the last tracked frames
         self._requested = False         # a fresh window asked for since the current model
         self._bootstrap = []            # Frames of the sequence while it has no model
+        self._bootstrap_seen = 0        # frames tracked since then (_bootstrap stops growing)
         self._bootstrap_depth = {}      # stamp -> (ids, z) published before the first model
+        self._realigning = False        # the mapping lost its state: record depths until a model
+        #: depths kept for the next model's orientation: as many frames as one solve holds
+        self._depth_frames = windows.window_size + windows.context_frames
         self._waiting = None            # (sequence, ShapeModel) for the next frame
         self._sequence = None
         self._lock = threading.Lock()
@@ -138,13 +142,14 @@ class LivePipeline:
             return
         _, model = waiting
         self._requested = False
+        self._realigning, self._bootstrap_depth = False, {}
         if self.has_model:
             self._tracker.swap(model)
             return
         if self.stats['first_model_after'] is None:
-            self.stats['first_model_after'] = len(self._bootstrap)
+            self.stats['first_model_after'] = self._bootstrap_seen
         self._tracker = Tracker(model, temporal_prior=self.temporal_prior)
-        self._bootstrap, self._bootstrap_depth = [], {}
+        self._bootstrap, self._bootstrap_seen = [], 0
 
     def _track(self, frame):
         """FrameResult of ``frame`` from the tracker, or from the bootstrap."""
@@ -161,6 +166,8 @@ class LivePipeline:
             self.stats['fresh_windows'] += 1
             self._requested = True
         self._residuals.append(tracked.residual)
+        if self._realigning:
+            self._keep_depth(frame.stamp_ns, tracked.ids, tracked.xyz[:, 2])
         return self._result(frame, tracked.ids, tracked.xyz)
 
     def _surprising(self, residual):
@@ -175,8 +182,10 @@ class LivePipeline:
         """Before the first model: track against a rigid model of the frames so far (rebuilt
         at BOOTSTRAP_AT frame counts), flat while that is ill-posed."""
         self.stats['bootstrap_frames'] += 1
-        self._bootstrap.append(frame)
-        if len(self._bootstrap) in BOOTSTRAP_AT:
+        self._bootstrap_seen += 1
+        if len(self._bootstrap) < BOOTSTRAP_AT[-1]:         # later rebuilds use no more
+            self._bootstrap.append(frame)
+        if self._bootstrap_seen in BOOTSTRAP_AT:
             model = bootstrap_model(self._bootstrap)
             if model is not None:
                 self._tracker = Tracker(model, temporal_prior=self.temporal_prior)
@@ -185,8 +194,25 @@ class LivePipeline:
             return self._flat(frame)
         self.last.update(residual=tracked.residual, model_age=self._tracker.age,
                          model_rank=0, bootstrap=True)
-        self._bootstrap_depth[frame.stamp_ns] = (tracked.ids, tracked.xyz[:, 2])
+        self._keep_depth(frame.stamp_ns, tracked.ids, tracked.xyz[:, 2])
         return self._result(frame, tracked.ids, tracked.xyz)
+
+    def _keep_depth(self, stamp_ns, ids, z):
+        """Remember the depth ``z: (P,)`` published for ``ids: (P,)`` at ``stamp_ns`` (the
+        newest ``_depth_frames`` frames), for the orientation of the next model."""
+        self._bootstrap_depth[stamp_ns] = (ids, z)
+        while len(self._bootstrap_depth) > self._depth_frames:
+            del self._bootstrap_depth[next(iter(self._bootstrap_depth))]
+
+    def published_depth(self, stamp_ns):
+        """``(ids: (P,), z: (P,))`` published at ``stamp_ns`` before the current model (the
+        bootstrap, or since :meth:`realign`), which the next model is oriented to; else None."""
+        return self._bootstrap_depth.get(stamp_ns)
+
+    def realign(self):
+        """The mapping lost its state (a restarted mapping process): until its next model, the
+        depths of tracked frames are kept so that model keeps the published orientation."""
+        self._realigning = True
 
     def _fit(self, frame):
         """The tracker's TrackedFrame of ``frame``, or None (counted) where the fit fails or
@@ -222,37 +248,26 @@ class LivePipeline:
         """Solve ``window`` (SlidingWindow.solve: raises WindowError); its solution becomes the
         tracker's next model. Returns a Step: the window's frames as ``refined`` (live) or as
         ``points`` (windows)."""
-        with threadpool_limits(limits=BLAS_THREADS, user_api='blas'):
-            results = self.windows.solve(window, progress=progress)
-            if self.output == 'windows':
-                return Step(points=tuple(results))
-            solution = self.windows.previous
-            if self._disagrees_with_bootstrap(solution):
-                self.windows.flip_previous()
-                results = [FrameResult(r.stamp_ns, r.frame_id, r.ids, r.xyz @ DEPTH_FLIP)
-                           for r in results]
-            model = build_model(solution.S, solution.R, solution.ids, solution.stamps)
+        results, model = solve_window(self.windows, window, self.output,
+                                      dict(self._bootstrap_depth), progress)
+        return self.accept(window.sequence, results, model)
+
+    def accept(self, sequence, results, model):
+        """Take a solved window of ``sequence``: its FrameResults ``results`` and ``model``
+        (:func:`solve_window`'s; None for output 'windows'). Returns solve's Step."""
+        if self.output == 'windows':
+            return Step(points=tuple(results))
         with self._lock:
-            self._waiting = (window.sequence, model)
+            self._waiting = (sequence, model)
         self.stats['models'] += 1
         self.stats['refined'] += len(results)
         return Step(refined=tuple(results))
 
-    def _disagrees_with_bootstrap(self, solution):
-        """True if ``solution``'s depth correlates negatively with the depths the bootstrap
-        published for the frames both have (the first model of a sequence keeps the published
-        orientation; later windows align to their predecessor)."""
-        published = dict(self._bootstrap_depth)
-        total = 0.0
-        Z = solution.S.reshape(len(solution.stamps), 3, -1)[:, 2, :]
-        for f, stamp in enumerate(solution.stamps):
-            if int(stamp) not in published:
-                continue
-            ids, z = published[int(stamp)]
-            _, a, b = np.intersect1d(solution.ids, ids, assume_unique=True,
-                                     return_indices=True)
-            total += float(np.dot(Z[f, a] - Z[f, a].mean(), z[b] - z[b].mean()))
-        return total < 0.0
+    def accept_solved_elsewhere(self, sequence, stamps, results, model):
+        """:meth:`accept` for a window solved by another SlidingWindow (a mapping process):
+        this one's bookkeeping (SlidingWindow.note_solved) first."""
+        self.windows.note_solved(sequence, stamps)
+        return self.accept(sequence, results, model)
 
     def reset(self):
         """Drop the buffered frames, the tracker and its model (SlidingWindow.reset); the
@@ -263,11 +278,13 @@ class LivePipeline:
         with self._lock:
             self._waiting = None
         self._forget_model()
+        self._realigning = False
         return {**dropped, 'model': dropped['model'] or had_model}
 
     def _forget_model(self):
         """No tracker, bootstrap or residual history: a sequence starts over."""
         self._tracker, self._bootstrap, self._bootstrap_depth = None, [], {}
+        self._bootstrap_seen = 0
         self._residuals.clear()
 
     def flush(self):
@@ -296,6 +313,39 @@ class LivePipeline:
     @metres_per_pixel.setter
     def metres_per_pixel(self, value):
         self.windows.metres_per_pixel = float(value)
+
+
+def solve_window(windows, window, output='live', published=None, progress=None):
+    """The mapping's work for one window: ``(results, model)``. ``windows.solve(window)``
+    (raises WindowError) gives the FrameResults; live output also turns the solution into a
+    ShapeModel, first flipping it (and ``windows``' kept solution) when its depth disagrees with
+    ``published`` (``{stamp: (ids, z)}`` published before this model, see
+    :func:`disagrees_with`). Output 'windows': no model (None). BLAS on BLAS_THREADS threads."""
+    with threadpool_limits(limits=BLAS_THREADS, user_api='blas'):
+        results = windows.solve(window, progress=progress)
+        if output == 'windows':
+            return results, None
+        solution = windows.previous
+        if published and disagrees_with(solution, published):
+            windows.flip_previous()
+            results = [FrameResult(r.stamp_ns, r.frame_id, r.ids, r.xyz @ DEPTH_FLIP)
+                       for r in results]
+        return results, build_model(solution.S, solution.R, solution.ids, solution.stamps)
+
+
+def disagrees_with(solution, published):
+    """True if ``solution``'s depth correlates negatively with the depths ``published``
+    (``{stamp: (ids, z)}``) on the frames both have (the first model of a sequence keeps the
+    orientation the bootstrap published; later windows align to their predecessor)."""
+    total = 0.0
+    Z = solution.S.reshape(len(solution.stamps), 3, -1)[:, 2, :]
+    for f, stamp in enumerate(solution.stamps):
+        if int(stamp) not in published:
+            continue
+        ids, z = published[int(stamp)]
+        _, a, b = np.intersect1d(solution.ids, ids, assume_unique=True, return_indices=True)
+        total += float(np.dot(Z[f, a] - Z[f, a].mean(), z[b] - z[b].mean()))
+    return total < 0.0
 
 
 def make_pipeline(config, solver_factory=None, **options):

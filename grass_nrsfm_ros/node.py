@@ -13,14 +13,17 @@ one worker thread for solves (mapping), publishing, logging, recording.
 
 Threading: a SingleThreadedExecutor runs the input subscription (which tracks and publishes
 each frame at once) and the housekeeping (frames stay in order); a closed window is handed to
-one worker thread (the mapping) and the callback returns at once. One executor thread, not a
-MultiThreadedExecutor (docs/decisions: the node's executor). While a solve runs, newer windows
-replace the one waiting (counted as dropped windows): the mapping skips to the newest window.
+the mapping and the callback returns at once: a child process (``mapping: process``,
+:mod:`grass_nrsfm_ros.mapping`, whose receiver thread publishes its results here) or one
+worker thread (``worker``). One executor thread, not a MultiThreadedExecutor (docs/decisions:
+the node's executor). While a solve runs, newer windows replace the one waiting (counted as
+dropped windows): the mapping skips to the newest window.
 
 Start: ``ros2 run grass_nrsfm_ros node --ros-args ...``, ``grass-nrsfm node --ros-args ...``
 or ``python -m grass_nrsfm_ros.node --ros-args ...``.
 """
 from collections import deque
+import gc
 import os
 import re
 import signal
@@ -52,6 +55,7 @@ from visualization_msgs.msg import Marker
 from grass_nrsfm_ros import cloud, mesh, params, qos as offered_qos, rates
 from grass_nrsfm_ros.bag import Recorder
 from grass_nrsfm_ros.live import make_pipeline
+from grass_nrsfm_ros.mapping import fix_mmap_threshold, MappingProcess
 from grass_nrsfm_ros.marker import mesh_marker
 from grass_nrsfm_ros.pipeline import FrameError, WindowError
 
@@ -141,7 +145,15 @@ class ReconstructionNode(Node):
         self.pipeline = make_pipeline(config, solver_factory, warm_start_class=warm_start_class)
         self._frame_id = config['frame_id']
         self._inline = config['mapping'] == 'inline'
-        self._counts = dict(messages=0, dropped_messages=0, dropped_windows=0, solve_errors=0)
+        self._handovers = deque(maxlen=LATENCY_WINDOW)    # seconds to hand a frame over
+        self.mapper = None
+        if config['mapping'] == 'process':
+            self.mapper = MappingProcess(
+                config, solver_factory, warm_start_class, output=self.pipeline.output,
+                on_message=self._on_mapped, on_exit=self._on_mapping_exit,
+                blas_threads=self._blas_threads)
+        self._counts = dict(messages=0, dropped_messages=0, dropped_windows=0, solve_errors=0,
+                            mapping_restarts=0)
         self._last_solve = {}
         self._lock = threading.Lock()
         self._pending, self._busy = None, False
@@ -189,8 +201,8 @@ class ReconstructionNode(Node):
     def _configure_blas(self):
         """Cap BLAS/OpenMP threads at all cores but one, so one stays free for the executor
         (the solver itself runs BLAS on one thread)."""
-        threads = max(1, (os.cpu_count() or 2) - 1)
-        self._blas_limits = threadpool_limits(limits=threads)
+        self._blas_threads = max(1, (os.cpu_count() or 2) - 1)
+        self._blas_limits = threadpool_limits(limits=self._blas_threads)
 
     def _open_recorder(self, path):
         """A :class:`grass_nrsfm_ros.bag.Recorder` of the input tracks (raw CDR, receive time)
@@ -269,6 +281,9 @@ class ReconstructionNode(Node):
             waiting, self._pending = self._pending, None
         sequence = self.pipeline.windows.stats['resets'] + 1
         dropped = self.pipeline.reset()
+        waiting = 'no window' if waiting is None else f'a {waiting.n_frames}-frame window'
+        if self.mapper is not None:
+            waiting = f'{self.mapper.reset()} windows in the mapping process'
         self._resets_requested += 1
         self._input_rate.reset(time.monotonic())
         self._output_rate.reset(time.monotonic())
@@ -276,8 +291,7 @@ class ReconstructionNode(Node):
         response.success = True
         response.message = (
             f'reset: dropped {dropped["frames"]} buffered frames, '
-            f'{"no window" if waiting is None else f"a {waiting.n_frames}-frame window"} '
-            'waiting, '
+            f'{waiting} waiting, '
             f'{"the model" if dropped["model"] else "no model"} of sequence {sequence}; '
             f'sequence {sequence + 1} starts with the next frame')
         self._last_reset = response.message
@@ -390,11 +404,27 @@ class ReconstructionNode(Node):
             self._publish(self.points_pub, result)
         if step.points:
             self._latencies.append(time.monotonic() - received)
+        if self.mapper is not None:
+            return self._hand_over(step, stamp)
         for window in step.windows:
             if self._inline:
                 self._solve_and_publish(window)     # reproducible: as the offline tools
             else:
                 self._submit(window)
+
+    def _hand_over(self, step, stamp):
+        """``mapping: process``: the accepted frame (with the depth published for it before a
+        model) and the windows it closed go to the mapping process."""
+        started = time.perf_counter()
+        self.mapper.add_frame(self.pipeline.windows.sequence, self.pipeline.windows.newest,
+                              self._published_depth(stamp))
+        for window in step.windows:
+            self.mapper.submit(window)
+        self._handovers.append(time.perf_counter() - started)
+
+    def _published_depth(self, stamp):
+        kept = self.pipeline.published_depth(stamp) if self.pipeline.output == 'live' else None
+        return None if kept is None else kept[1]
 
     def _drop(self, stamp, reason):
         self._counts['dropped_messages'] += 1
@@ -433,6 +463,39 @@ class ReconstructionNode(Node):
         with self._lock:
             self._busy = False
 
+    # -- solving (mapping process) --------------------------------------------------------------
+    def _on_mapped(self, message):
+        """A message of the mapping process (its receiver thread): a solved window is taken
+        as the next model and published, a failure or a skipped window counted and logged."""
+        kind, spec = message[0], message[1]
+        if self._stopping.is_set():
+            return
+        if kind == 'dropped':
+            if message[2] == 'skipped':
+                self._counts['dropped_windows'] += 1
+                self._log.warning('solves are falling behind: skipped to the newest window')
+            return
+        if kind == 'failed':
+            self._counts['solve_errors'] += 1
+            self.pipeline.windows.note_failed()
+            if message[2] == 'window':
+                return self._log.warning(f'window not solved: {message[3]}')
+            return self.get_logger().error(
+                f'window {spec.index} failed in the mapping process: {message[3]}')
+        _, spec, results, model, figures = message
+        step = self.pipeline.accept_solved_elsewhere(spec.sequence, spec.stamps, results, model)
+        self._publish_solved(step, spec, figures)
+
+    def _on_mapping_exit(self, exitcode, restarted):
+        """The mapping process died unasked: say so; the tracking goes on with its model."""
+        self._counts['solve_errors'] += 1
+        self._counts['mapping_restarts'] += 1
+        then = ('restarted it; windows need new frames before they solve again'
+                if restarted else 'not restarted (too many restarts): the model is frozen')
+        self.get_logger().error(f'the mapping process exited with code {exitcode}: {then}')
+        if restarted:
+            self.pipeline.realign()
+
     def _cancel_if_stopping(self, iteration, report):
         """The solver's progress callback: abandon the solve once the node is stopping."""
         if self._stopping.is_set():
@@ -451,16 +514,20 @@ class ReconstructionNode(Node):
             self._counts['solve_errors'] += 1
             return self.get_logger().error(f'window {window.index} failed: '
                                            f'{type(exc).__name__}: {exc}')
-        self._publish_paced(self.points_pub, results.points)
-        self._publish_paced(self.refined_pub, results.refined)
         report = self.pipeline.previous.report
-        self._last_solve = dict(
+        self._publish_solved(results, window, dict(
             solve_seconds=time.monotonic() - started,
-            latency_seconds=time.monotonic() - window.closed_at,
             iterations=getattr(report, 'iterations', ''),
             reprojection_residual=self.pipeline.previous.residual,
-            tracks_in_window=window.ids.size, frames_in_window=window.n_frames,
-            tracks_thinned=getattr(report, 'thinned_points', ''))
+            tracks_thinned=getattr(report, 'thinned_points', '')))
+
+    def _publish_solved(self, step, window, figures):
+        """Publish a solved window's Step (``points`` / ``refined``) and note its figures."""
+        self._publish_paced(self.points_pub, step.points)
+        self._publish_paced(self.refined_pub, step.refined)
+        self._last_solve = dict(figures, latency_seconds=time.monotonic() - window.closed_at,
+                                tracks_in_window=window.ids.size,
+                                frames_in_window=window.n_frames)
         if not self._stopping.is_set():
             self._publish_diagnostics()
 
@@ -506,7 +573,8 @@ class ReconstructionNode(Node):
                 'model age frames': '' if last['model_age'] is None else last['model_age'],
                 'model rank': '' if last['model_rank'] is None else last['model_rank'],
                 'bootstrap': last['bootstrap'],
-                'mapping backlog': int(self._busy) + int(self._pending is not None),
+                'mapping backlog': self._backlog(),
+                **self._handover_values(),
                 'frames tracked': live.stats['tracked'],
                 'frames refined': live.stats['refined'],
                 'frames not refined': live.windows.stats['frames_lost'],
@@ -515,6 +583,22 @@ class ReconstructionNode(Node):
                 'frames not tracked (published flat)': live.stats['tracking_failed'],
                 'first model after frames': '' if live.stats['first_model_after'] is None
                 else live.stats['first_model_after']}
+
+    def _backlog(self):
+        """Windows closed and not yet solved (running or waiting)."""
+        if self.mapper is not None:
+            return self.mapper.outstanding
+        return int(self._busy) + int(self._pending is not None)
+
+    def _handover_values(self):
+        """``mapping: process``: what handing frames over costs the tracking, the restarts."""
+        if self.mapper is None:
+            return {}
+        p95 = np.percentile(self._handovers, 95) if self._handovers else None
+        return {'mapping process': (self.mapper.pid or 'starting') if self.mapper.alive
+                else 'not running',
+                'mapping hand-over p95 ms': '' if p95 is None else f'{1e3 * p95:.3f}',
+                'mapping restarts': self._counts['mapping_restarts']}
 
     def _publish_diagnostics(self):
         stats = self.pipeline.windows.stats
@@ -530,7 +614,7 @@ class ReconstructionNode(Node):
                   'frames pending': 0 if live else self.pipeline.pending_frames,
                   'sequences': stats['resets'] + 1,
                   'windows not solved': self._counts['solve_errors'],
-                  'solver busy': self._busy,
+                  'solver busy': self._backlog() > 0 if self.mapper is not None else self._busy,
                   'tracks publishers': self.tracks_sub.get_publisher_count(),
                   'points subscribers': self.points_pub.get_subscription_count(),
                   'input reliability': self.tracks_sub.qos_profile.reliability.name.lower(),
@@ -553,6 +637,8 @@ class ReconstructionNode(Node):
         """Stop solving (a running solve is cancelled through its progress callback, or left
         behind on its daemon thread after ``grace`` seconds), then close the recording."""
         self._stopping.set()
+        if self.mapper is not None:
+            self.mapper.close(grace)
         with self._lock:
             self._pending = None
             thread = self._solve_thread
@@ -569,6 +655,7 @@ class ReconstructionNode(Node):
 def main(args=None, *, solver_factory=None, warm_start_class=None):
     """Run the node until Ctrl-C / SIGTERM; returns the exit code (2: invalid parameters)."""
     sys.setswitchinterval(GIL_SWITCH_S)
+    fix_mmap_threshold()
     # Ctrl-C / SIGTERM set a flag that the spin loop reads (at most SPIN_PERIOD_S later).
     # rclpy's own handlers shut the context down from C at once, racing the start-up and the
     # executor: a signal just after the start-up line ended in a traceback and exit code 1
@@ -586,6 +673,10 @@ def main(args=None, *, solver_factory=None, warm_start_class=None):
             return 2
         executor = SingleThreadedExecutor()
         executor.add_node(node)
+        # later full collections skip what start-up made (modules, the node): one took 83 ms
+        # of the GIL on this machine, a tracked frame's budget several times over; after
+        # gc.freeze(), under 0.1 ms (record 0411)
+        gc.freeze()
         while not stop.is_set():
             executor.spin_once(timeout_sec=SPIN_PERIOD_S)
     except ExternalShutdownException:

@@ -32,7 +32,7 @@ WARM_STARTS = ('model', 'full', 'off', 'resume')
 WARM_ROTATIONS = ('refine', 'fit', 'solver')
 #: values of ``output`` and ``mapping``
 OUTPUTS = ('live', 'windows')
-MAPPINGS = ('worker', 'inline')
+MAPPINGS = ('process', 'worker', 'inline')
 #: values of ``input_reliability``
 INPUT_RELIABILITIES = ('auto', 'best_effort', 'reliable')
 #: the fewest frames a window can have
@@ -77,9 +77,11 @@ NODE_PARAMS = (
           "shape model and published on points at once; each solved window's frames follow on "
           "points/refined. 'windows': frames are published on points only when their window is "
           'solved (the sliding-window behaviour).', choices=OUTPUTS),
-    Param('mapping', 'worker', str,
-          "Where windows are solved: 'worker' (a thread beside the tracking: every frame is "
-          "published at once, refined when its window is solved); 'inline' (in the input "
+    Param('mapping', 'process', str,
+          "Where windows are solved: 'process' (a child process beside the tracking, at a "
+          'lower CPU priority: every frame is published at once, refined when its window is '
+          "solved; frames and models cross between the processes); 'worker' (a thread of the "
+          "node: the mapping's Python shares the tracking's GIL); 'inline' (in the input "
           'callback, before the next frame: the output equals the offline tools for the same '
           'input, but tracking waits for each solve).', choices=MAPPINGS),
     Param('mapping_tracks', 5000, int,

@@ -372,9 +372,7 @@ class SlidingWindow:
         common = frames[0].ids
         for f in frames[1:]:
             common = common_ids(common, f.ids)
-        uv = np.stack([f.uv if f.ids.size == common.size else
-                       f.uv[np.searchsorted(f.ids, common)] for f in frames])    # (F, P, 2)
-        W = uv.transpose(0, 2, 1).reshape(2 * len(frames), common.size)
+        W = window_matrix(frames, common)
         stamps = np.array([f.stamp_ns for f in frames], dtype=np.int64)
         for s in stamps:
             if self._emitted_until is None or s > self._emitted_until:
@@ -493,18 +491,36 @@ class SlidingWindow:
         W = np.vstack(blocks + [W_window]) if blocks else W_window
         return Problem(window.sequence, stamps, ids, W, len(context))
 
-    def _publish(self, window, ids, XY, Z):
-        done = self._published_until.get(window.sequence)
-        fresh = [i for i, s in enumerate(window.stamps) if done is None or s > done]
+    def note_solved(self, sequence, stamps):
+        """Bookkeep a window of ``sequence`` over ``stamps: (F,)`` solved elsewhere (a mapping
+        process with its own SlidingWindow): counted solved, its frames not published before
+        counted published (and those it passed over lost), as :meth:`solve` does."""
+        self._count('solved')
+        self._count('published', len(self._fresh(sequence, stamps)))
+
+    def note_failed(self):
+        """Count a window that was not solved elsewhere (see :meth:`note_solved`)."""
+        self._count('failed')
+
+    def _fresh(self, sequence, stamps):
+        """Indices of ``stamps: (F,)`` (a solved window of ``sequence``) not published before;
+        marks them published and counts the frames this window passed over as lost."""
+        done = self._published_until.get(sequence)
+        fresh = [i for i, s in enumerate(stamps) if done is None or s > done]
         if not fresh:
             return []
-        newest = int(window.stamps[fresh[-1]])
-        first = int(window.stamps[fresh[0]])
-        self._published_until[window.sequence] = newest
-        while self._unpublished and self._unpublished[0] <= (window.sequence, newest):
+        newest, first = int(stamps[fresh[-1]]), int(stamps[fresh[0]])
+        self._published_until[sequence] = newest
+        while self._unpublished and self._unpublished[0] <= (sequence, newest):
             seq, stamp = self._unpublished.popleft()
-            if seq < window.sequence or stamp < first:
+            if seq < sequence or stamp < first:
                 self._count('frames_lost')
+        return fresh
+
+    def _publish(self, window, ids, XY, Z):
+        fresh = self._fresh(window.sequence, window.stamps)
+        if not fresh:
+            return []
         scale = self.metres_per_pixel
         out = []
         for i in fresh:
@@ -711,6 +727,13 @@ class SlidingWindow:
     def previous(self):
         """The last solved window's Solution (its ``report`` holds the solver's report)."""
         return self._previous
+
+
+def window_matrix(frames, ids):
+    """``W: (2F, P)`` pixels of the tracks ``ids: (P,)`` (in every one of ``frames``)."""
+    uv = np.stack([f.uv if f.ids.size == ids.size else
+                   f.uv[np.searchsorted(f.ids, ids)] for f in frames])    # (F, P, 2)
+    return uv.transpose(0, 2, 1).reshape(2 * len(frames), ids.size)
 
 
 def subset_init(init, keep):

@@ -4,10 +4,13 @@ pytest puts test/ on the path, and the node tests' launch strings run from test/
 Inputs: :func:`bending_sheet` (``W: (2F, P)`` pixels, ``S: (3F, P)``, ``ids: (P,)``),
 :func:`random_rotations` (``(F, 3, 3)``). A real rigid solver, :class:`RigidALS` with its
 :class:`RigidWarmStart`, which the node and pipeline tests inject in place of GrassmannNRSfM;
-solvers that misbehave (NaN, slow, not cancellable); stand-ins with the solver's or the
-pipeline's protocol.
+solvers that misbehave (NaN, slow, not cancellable, failing, crashing); stand-ins with the
+solver's or the pipeline's protocol.
 """
 from dataclasses import dataclass
+import os
+from pathlib import Path
+import signal
 import time
 from types import SimpleNamespace
 
@@ -190,6 +193,33 @@ class StubbornSolver(SlowSolver):
 
     def fit(self, W, init=None):
         return super().fit(W, init, None)
+
+
+class FailsSecondWindow(RigidALS):
+    """The rigid test solver, raising RuntimeError at the second fit of its process."""
+
+    fits = 0
+
+    def fit(self, W, init=None):
+        type(self).fits += 1
+        if type(self).fits == 2:
+            raise RuntimeError('second window refused by FailsSecondWindow')
+        return super().fit(W, init)
+
+
+class KillsItsProcessOnce(RigidALS):
+    """The rigid test solver, but the second fit of a run kills its own process (SIGKILL: a
+    crash); ``$GRASS_TEST_CRASH_MARKER`` names the file that records that it happened."""
+
+    fits = 0
+
+    def fit(self, W, init=None):
+        type(self).fits += 1
+        marker = Path(os.environ['GRASS_TEST_CRASH_MARKER'])
+        if type(self).fits == 2 and not marker.exists():
+            marker.touch()
+            os.kill(os.getpid(), signal.SIGKILL)
+        return super().fit(W, init)
 
 
 # -- stand-ins with the solver's or the pipeline's protocol -----------------------------------

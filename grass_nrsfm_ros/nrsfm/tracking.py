@@ -50,6 +50,9 @@ ALTERNATIONS = 4
 GN_STEPS = 2
 #: tracks the model lacks take the depth of this many nearest model tracks in the image
 NEW_TRACK_NEIGHBOURS = 6
+#: rotations of tracked frames a Tracker keeps for the next swap (the newest; bounded so a
+#: model that is never replaced does not grow them without end)
+HISTORY_FRAMES = 1000
 
 
 @dataclass(frozen=True)
@@ -213,6 +216,8 @@ class Tracker:
         xyz = np.column_stack([w_all.T, z - z.mean()])
         self.R, self.c = R, c
         self.history[int(stamp_ns)] = R
+        if len(self.history) > HISTORY_FRAMES:
+            del self.history[next(iter(self.history))]
         self.age += 1
         return TrackedFrame(ids, xyz, R, c, residual, int(new.size))
 

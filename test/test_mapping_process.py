@@ -1,0 +1,164 @@
+"""``mapping:=process``: windows solved in a child process of the node, over DDS.
+
+The node runs with the rigid solver of test/doubles.py (or one that fails or crashes), fed at
+30 Hz from this process: every frame comes back on ``points`` at once and the windows on
+``points/refined``; a failing window and a dying child are reported and lose nothing else;
+``~/reset`` reaches the child; the child never outlives the node.
+"""
+import os
+from pathlib import Path
+import select
+import signal
+
+import numpy as np
+import pytest
+
+from doubles import bending_sheet
+from grass_nrsfm_ros import cloud
+from grass_nrsfm_ros.nrsfm.measurement import as_frames
+from grass_nrsfm_ros.nrsfm.metrics import e3d
+
+rclpy = pytest.importorskip('rclpy')
+from builtin_interfaces.msg import Time  # noqa: E402, I100
+from std_msgs.msg import Header  # noqa: E402
+from std_srvs.srv import Trigger  # noqa: E402
+from rosutil import node_with_feeder, publish, RIGID_LAUNCH  # noqa: E402, I100
+
+pytestmark = pytest.mark.ros
+PERIOD = 1 / 30
+T0 = 1_700_000_000_000_000_000
+PROCESS = ['-p', 'mapping:=process', '-p', 'context_frames:=0']
+FAILING_LAUNCH = RIGID_LAUNCH.replace('RigidALS', 'FailsSecondWindow')
+CRASHING_LAUNCH = RIGID_LAUNCH.replace('RigidALS', 'KillsItsProcessOnce')
+
+
+def stamp_ns(f):
+    return T0 + int(f * PERIOD * 1e9)
+
+
+def stamp_of(msg):
+    return msg.header.stamp.sec * 10 ** 9 + msg.header.stamp.nanosec
+
+
+def frames(W, ids, first=0):
+    """Tracks clouds of ``W: (2F, P)``, stamped from frame ``first`` at 30 Hz."""
+    out = []
+    for f, uv in enumerate(as_frames(W, 2)):
+        ns = stamp_ns(first + f)
+        header = Header(stamp=Time(sec=ns // 10 ** 9, nanosec=ns % 10 ** 9), frame_id='camera')
+        out.append(cloud.encode_tracks(ids, uv.T, header))
+    return out
+
+
+def stacked(messages, ids):
+    """``(3F, P)`` of ``messages`` in stamp order, columns in the order of ``ids``."""
+    blocks = []
+    for msg in sorted(messages, key=stamp_of):
+        got, xyz = cloud.decode_points(msg)
+        blocks.append(xyz[np.argsort(got)][np.searchsorted(np.sort(ids), ids)].T)
+    return np.vstack(blocks)
+
+
+def mapping_pid(feeder, node_pid):
+    """The child's pid from the node's diagnostics, checked to be the node's child."""
+    assert feeder.wait_for(lambda: feeder.diagnostic_values().get('mapping process', '')
+                           .isdigit(), 20), feeder.diagnostic_values()
+    pid = int(feeder.diagnostic_values()['mapping process'])
+    stat = Path(f'/proc/{pid}/stat').read_text()
+    assert int(stat.rsplit(')', 1)[1].split()[1]) == node_pid           # its parent
+    return pid
+
+
+def exits_within(pid, timeout):
+    """True once process ``pid`` (not ours) has exited, waiting on its pidfd."""
+    try:
+        fd = os.pidfd_open(pid)
+    except ProcessLookupError:
+        return True
+    try:
+        return bool(select.select([fd], [], [], timeout)[0])
+    finally:
+        os.close(fd)
+
+
+def test_every_frame_on_points_windows_refined_reset_and_clean_exit(ros_env, tmp_path):
+    log = tmp_path / 'node.log'
+    W, S, ids = bending_sheet(F=60, noise=0.5)
+    with node_with_feeder(ros_env, log, PROCESS, points_depth=60) as (proc, feeder):
+        child = mapping_pid(feeder, proc.pid)
+        publish(feeder, frames(W, ids))
+        assert feeder.wait_for(lambda: len(feeder.points) >= 60
+                               and len(feeder.refined) >= 60, 60), log.read_text()
+        counts = feeder.accounted(60)
+        assert counts is not None and counts['frames published'] == 60, log.read_text()
+        assert sorted(stamp_of(m) for m in feeder.points) == [stamp_ns(f) for f in range(60)]
+        assert sorted(stamp_of(m) for m in feeder.refined) == [stamp_ns(f) for f in range(60)]
+        assert len(feeder.latencies) == 60 and np.median(feeder.latencies) < 0.1
+        # the same thresholds as test_node's worker thread (same data, same rigid solver)
+        assert e3d(stacked(feeder.refined, ids), S) < 0.042
+        assert e3d(stacked(feeder.points, ids), S) < 0.058
+        values = feeder.diagnostic_values()
+        assert values['windows solved'] == '4' and values['windows not solved'] == '0'
+        assert float(values['mapping hand-over p95 ms']) < 20, values
+        # ~/reset reaches the child: the next sequence is refined from its own frames only
+        client = feeder.node.create_client(Trigger, f'{feeder.node.get_namespace()}/'
+                                           'grass_nrsfm/reset')
+        assert client.wait_for_service(timeout_sec=10)
+        future = client.call_async(Trigger.Request())
+        assert feeder.wait_for(future.done, 10)
+        assert 'windows in the mapping process' in future.result().message
+        publish(feeder, frames(W[:60], ids, first=60))
+        assert feeder.wait_for(lambda: len(feeder.refined) >= 90, 30), log.read_text()
+        assert sorted(stamp_of(m) for m in feeder.refined)[60:] == \
+            [stamp_ns(f) for f in range(60, 90)]
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(15) == 0
+        assert exits_within(child, 5)
+    assert 'Traceback' not in log.read_text()
+
+
+def test_a_failing_window_is_reported_and_nothing_else_is_lost(ros_env, tmp_path):
+    log = tmp_path / 'node.log'
+    W, S, ids = bending_sheet(F=60, noise=0.5)
+    with node_with_feeder(ros_env, log, PROCESS, launch=FAILING_LAUNCH,
+                          points_depth=60) as (proc, feeder):
+        publish(feeder, frames(W, ids))
+        assert feeder.wait_for(lambda: len(feeder.points) >= 60
+                               and len(feeder.refined) >= 60, 60), log.read_text()
+        counts = feeder.accounted(60)
+        assert counts is not None and counts['frames published'] == 60
+        values = feeder.diagnostic_values()
+        assert values['windows not solved'] == '1' and values['windows solved'] == '3', values
+    text = log.read_text()
+    assert 'window 1 failed in the mapping process: RuntimeError: second window refused' \
+        in text, text
+    # window 2 (frames 20-49) refines the frames window 1 would have: none is missing
+    assert sorted(stamp_of(m) for m in feeder.refined) == [stamp_ns(f) for f in range(60)]
+
+
+def test_a_dying_child_is_reported_restarted_and_never_outlives_the_node(ros_env, tmp_path):
+    log = tmp_path / 'node.log'
+    env = {**ros_env, 'GRASS_TEST_CRASH_MARKER': str(tmp_path / 'crashed')}
+    W, S, ids = bending_sheet(F=120, noise=0.5)
+    with node_with_feeder(env, log, PROCESS, launch=CRASHING_LAUNCH,
+                          points_depth=120) as (proc, feeder):
+        first = mapping_pid(feeder, proc.pid)
+        publish(feeder, frames(W, ids))
+        assert feeder.wait_for(lambda: len(feeder.points) >= 120, 30), log.read_text()
+        counts = feeder.accounted(120, timeout=60)
+        assert counts is not None and counts['frames published'] == 120, log.read_text()
+        values = feeder.diagnostic_values()
+        assert values['mapping restarts'] == '1', values
+        second = int(values['mapping process'])
+        assert second != first and exits_within(first, 0)
+        # the restarted child solves again once it holds a window's frames
+        assert feeder.wait_for(lambda: feeder.refined, 30), log.read_text()
+        # the published depth keeps one orientation across the restart (the first model came
+        # at frame 30, the crash at the second window): consecutive clouds' depths correlate
+        # positively from the first model on
+        z = stacked(feeder.points, ids).reshape(120, 3, -1)[31:, 2, :]
+        assert (np.sum(z[1:] * z[:-1], axis=1) > 0).all()
+        proc.send_signal(signal.SIGKILL)                   # the node dies: the child follows
+        proc.wait(10)
+        assert exits_within(second, 10)
+    assert 'the mapping process exited with code -9: restarted it' in log.read_text()
