@@ -36,6 +36,10 @@ def add_arguments(parser):
                         help='/clock rate between messages (40)')
     parser.add_argument('--wait-for-subscribers', type=int, default=0, metavar='N',
                         help='wait until N subscribers are matched before starting (0)')
+    parser.add_argument('--delay', type=float, default=0.0, metavar='S',
+                        help='seconds to wait before playing, after --wait-for-subscribers, '
+                             'so readers that match late get the first messages on time '
+                             '(a reliable writer repairs those ~0.3 s late; 0)')
     parser.add_argument('--depth', type=int, default=10, help='publisher queue depth (10)')
 
 
@@ -147,9 +151,18 @@ class Player:
             rclpy.spin_once(self.node, timeout_sec=0.05)
 
 
+def spin_for(node, seconds, player):
+    """Spin ``node`` for ``seconds`` (or until the player is stopped)."""
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline and not player.stopped:
+        rclpy.spin_once(node, timeout_sec=min(0.05, max(0.0, deadline - time.monotonic())))
+
+
 def run(args):
     if args.rate <= 0:
         raise UserError(f'--rate must be positive; got {args.rate}')
+    if args.delay < 0:
+        raise UserError(f'--delay must be >= 0; got {args.delay}')
     # Ctrl-C / SIGTERM only set a flag that the playing loop reads between messages. With
     # rclpy's own handlers, which shut the context down at once from C, a publish under way
     # failed ("publisher's context is invalid": a traceback, exit code 1); and a
@@ -164,14 +177,13 @@ def run(args):
             signal.signal(sig, player.stop)
         if args.wait_for_subscribers > 0:
             player.wait_for_subscribers(args.wait_for_subscribers)
+        spin_for(node, args.delay, player)
         while not player.stopped:
             player.play_once()
             if not args.loop:
                 break
         # let reliable messages reach late acknowledgers before the publisher goes away
-        deadline = time.monotonic() + 0.5
-        while time.monotonic() < deadline and not player.stopped:
-            rclpy.spin_once(node, timeout_sec=0.05)
+        spin_for(node, 0.5, player)
         if player.stopped:
             print('replay: interrupted')
     except KeyboardInterrupt:            # Ctrl-C before the handlers are set (no rclpy ones)
