@@ -255,13 +255,11 @@ def step_angles(R):
     return np.degrees(np.arccos(cosang))
 
 
-def align_rotations(R_est, R_known, known):
-    """Align estimated rotations ``(F, 3, 3)`` to given ones on the ``known: (F,)`` frames.
-
-    Finds the world rotation Q (and whether to use the orthographic depth-flip twin
-    ``D R D``, D = diag(1, 1, -1)) minimising ``sum_known ||R_est_f Q - R_known_f||^2``; returns
-    the aligned estimates with the known frames replaced by the given rotations.
-    """
+def to_world_frame(R_est, R_known, known):
+    """Estimated rotations ``(F, 3, 3)`` put in the world frame of given ones on the
+    ``known: (F,)`` frames: the world rotation Q (and whether to use the orthographic
+    depth-flip twin ``D R D``, D = diag(1, 1, -1)) minimising
+    ``sum_known ||R_est_f Q - R_known_f||^2``; every frame stays estimated."""
     D = np.diag([1.0, 1.0, -1.0])
     best, best_err = None, np.inf
     for cand in (R_est, D @ R_est @ D):
@@ -270,6 +268,14 @@ def align_rotations(R_est, R_known, known):
         err = np.linalg.norm(cand[known] @ Q - R_known[known])
         if err < best_err:
             best, best_err = cand @ Q, err
+    return best
+
+
+def align_rotations(R_est, R_known, known):
+    """Align estimated rotations ``(F, 3, 3)`` to given ones on the ``known: (F,)`` frames
+    (:func:`to_world_frame`); returns the aligned estimates with the known frames replaced by
+    the given rotations."""
+    best = to_world_frame(R_est, R_known, known)
     best[known] = R_known[known]
     return best
 
@@ -452,10 +458,9 @@ def rotations_from_start(W, K, R0, known):
 
     The start is the column triple ``G0: (3K, 3)`` with ``Pi_f G0 ~ c_f R0_f[:2]`` on the known
     frames (``c_f`` the basis coefficients: the smallest right singular vector of that linear
-    system), refined over every frame as in :func:`rotations_for_rank`. The result is put in
-    R0's world frame (one rotation Q, or the depth-flip twin, fitted on the known frames);
-    known frames are re-estimated, not kept. Raises ValueError where W's rank is too low or a
-    frame's rows degenerate. Returns a :class:`RotationEstimate`."""
+    system), refined over every frame as in :func:`rotations_for_rank`, put in R0's world frame
+    (:func:`to_world_frame`); known frames are re-estimated, not kept. Raises ValueError where
+    W's rank is too low or a frame's rows degenerate. Returns a :class:`RotationEstimate`."""
     U, d, Vt, Wn, _ = normalised_svd(W)
     n = min(3 * int(K), _numerical_rank(d))
     if n < 3:
@@ -473,15 +478,8 @@ def rotations_from_start(W, K, R0, known):
     R, ok = _rotations_from_triple(Pi, G)
     if not ok.all():
         raise ValueError('rotation rows degenerate for some frames')
-    D = np.diag([1.0, 1.0, -1.0])
-    best, best_err = None, np.inf
-    for cand in (R, D @ R @ D):
-        Q = nearest_rotation(np.einsum('fji,fjk->ik', cand[idx], R0[idx]))
-        err = np.linalg.norm(cand[idx] @ Q - R0[idx])
-        if err < best_err:
-            best, best_err = cand @ Q, err
-    return RotationEstimate(R=best, K=int(K), scores={'residual': residual, 'rank_used': n,
-                                                      'rule': f'K={int(K)} from the start'})
+    scores = {'residual': residual, 'rank_used': n, 'rule': f'K={int(K)} from the start'}
+    return RotationEstimate(R=to_world_frame(R, R0, known), K=int(K), scores=scores)
 
 
 def noise_ratio(K, n_frames):
