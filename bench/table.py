@@ -135,6 +135,19 @@ def live_table(doc):
                      f'{fmt(r["mapping_cpu_per_window_s"], 2)} '
                      f'({fmt(r["windows_cpu_per_window_s"], 2)}) | '
                      f'{fmt(r["tracking_ms_p95"], 1)} |')
+    causal = [r for r in doc['rows'] if 'e3d_causal_startup' in r]
+    if causal:
+        lines += ['', 'A causal reference: frame t re-solved from every frame up to t (one solve '
+                  'of the whole past, the windows solver), at every frame of the start-up '
+                  '(before the first model) and at 10 later frames, against the points and the '
+                  'windows on the same frames (e3D):', '',
+                  '| sequence | start-up: causal / points / windows | '
+                  'later: causal / points / windows |', '|---|---|---|']
+        for r in causal:
+            parts = [' / '.join(fmt(r.get(f'e3d_{kind}_{part}'))
+                                for kind in ('causal', 'points', 'windows'))
+                     for part in ('startup', 'later')]
+            lines.append(f'| {r["sequence"]} | {parts[0]} | {parts[1]} |')
     node = load(common.RESULTS, 'live_node') or {}
     if node:
         lines += ['', 'The node over DDS, 300 frames of the slow face at 30 Hz '

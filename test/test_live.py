@@ -101,6 +101,51 @@ def test_a_model_swap_carries_the_rotation_through_the_shared_frames():
         np.testing.assert_allclose(out.xyz[:, 2], S[f, 2] - S[f, 2].mean(), atol=1e-6)
 
 
+def test_a_late_model_swap_starts_from_its_newest_rotation_and_the_motion_since():
+    """The model arrives four frames after its newest one (solved while tracking went on):
+    the tracker carries only the motion since that frame onto the model's own rotation of it,
+    so the old model's tracking errors on older shared frames do not leak into the new one."""
+    X, R = low_rank_sequence(F=50, rank=1)
+    F, _, P = X.shape
+    S = R @ X
+    ids = np.arange(P, dtype=np.uint32)
+    tracker = tracking.Tracker(tracking.build_model(S[:20].reshape(60, P), R[:20], ids,
+                                                    np.arange(20)), noise_share=0.0)
+    for f in range(20, 30):
+        tracker.track(f, ids, S[f, :2].T)
+    rng = np.random.default_rng(6)
+    for f in range(20, 25):                 # the old model's (here: corrupted) older estimates
+        tracker.history[f] = random_rotation(rng) @ tracker.history[f]
+    Q = random_rotation(np.random.default_rng(5))
+    second = tracking.build_model(S[10:26].reshape(48, P), R[10:26] @ Q, ids, np.arange(10, 26))
+    tracker.swap(second)
+    assert tracker.age == 4
+    np.testing.assert_allclose(tracker.R, R[29] @ Q, atol=1e-6)     # frame 29, new world
+    for f in range(30, F):
+        out = tracker.track(f, ids, S[f, :2].T)
+        np.testing.assert_allclose(out.xyz[:, 2], S[f, 2] - S[f, 2].mean(), atol=1e-6)
+
+
+def test_the_rotation_stays_a_rotation_over_many_model_swaps():
+    """A model every second frame (fresh windows in a row): rounding in the carried rotation
+    (here: 0.1 % of scale) must not compound from swap to swap (it once squared its
+    determinant's error at each swap, until the rotation was zero)."""
+    X, R = low_rank_sequence(F=120, rank=1)
+    F, _, P = X.shape
+    S = R @ X
+    ids = np.arange(P, dtype=np.uint32)
+    tracker = tracking.Tracker(tracking.build_model(S[:20].reshape(60, P), R[:20], ids,
+                                                    np.arange(20)), noise_share=0.0)
+    tracker.R = 1.001 * tracker.R
+    for f in range(20, F):
+        if f % 2 == 0:
+            tracker.swap(tracking.build_model(S[f - 20:f].reshape(60, P), R[f - 20:f], ids,
+                                              np.arange(f - 20, f)))
+        out = tracker.track(f, ids, S[f, :2].T)
+        assert abs(np.linalg.det(tracker.R) - 1.0) < 1e-9
+    np.testing.assert_allclose(out.xyz[:, 2], S[F - 1, 2] - S[F - 1, 2].mean(), atol=1e-6)
+
+
 # -- LivePipeline -------------------------------------------------------------------------------
 def live(output='live', **window_kwargs):
     window_kwargs.setdefault('warm_start_class', RigidWarmStart)

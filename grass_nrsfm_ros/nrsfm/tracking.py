@@ -131,7 +131,7 @@ def fit_rotation(w, X, R, steps=GN_STEPS):
         g = Jx.T @ e[0] + Jy.T @ e[1]
         H[np.diag_indices(3)] += 1e-9 * np.trace(H) + 1e-300
         R = Rotation.from_rotvec(np.linalg.solve(H, g)).as_matrix() @ R
-    return R
+    return nearest_rotation(R)
 
 
 def fit_frame(w, mean, modes, R, c, prior=0.0, alternations=ALTERNATIONS, variances=None,
@@ -174,16 +174,21 @@ class Tracker:
         self.age = 0                    # frames tracked since the model's newest frame
 
     def swap(self, model):
-        """Continue with ``model``: the current rotation is carried into its world frame
-        through the frames both this tracker and ``model`` hold rotations of (``Q`` from
-        ``R_new_f ~ R_old_f Q``); without shared frames, from ``model``'s newest rotation."""
+        """Continue with ``model``: the current rotation is carried into its world frame.
+        When this tracker tracked ``model``'s newest frame n, from ``model``'s own rotation
+        of it and the motion tracked since: ``R = R_old_t R_old_n^T R_new_n``; else through
+        the frames both hold rotations of (``Q`` from ``R_new_f ~ R_old_f Q``); without
+        shared frames, ``model``'s newest rotation."""
+        newest = int(model.stamps[-1])
         shared = [i for i, s in enumerate(model.stamps) if int(s) in self.history]
-        if shared:
+        if newest in self.history:        # rounding kept from compounding over swaps
+            self.R = nearest_rotation(self.R @ self.history[newest].T @ model.R[-1])
+        elif shared:
             M = sum(self.history[int(model.stamps[i])].T @ model.R[i] for i in shared)
             self.R = self.R @ nearest_rotation(M)
         else:
             self.R = model.R[-1].copy()
-        self.age = sum(1 for stamp in self.history if stamp > int(model.stamps[-1]))
+        self.age = sum(1 for stamp in self.history if stamp > newest)
         self.model = model
         self.c = model.coefficients[-1].copy() if model.rank else np.zeros(0)
         self.history = {}
