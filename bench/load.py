@@ -33,6 +33,7 @@ from grass_nrsfm_ros import bag, cloud
 from grass_nrsfm_ros.nrsfm.measurement import as_frames
 from grass_nrsfm_ros.nrsfm.synthetic import make_sequence
 from grass_nrsfm_ros.params import all_params, MAPPINGS
+from . import common
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / 'test'))          # the node-over-DDS helpers of the tests
@@ -221,7 +222,7 @@ def run(seconds=600.0, points=30_000, rate=30.0, solver='rigid', window=30, stri
 def save(figures, key='load'):
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
     old = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
-    old[key] = figures
+    old[key] = {'environment': common.environment(), **figures}
     RESULTS.write_text(json.dumps(old, indent=1, sort_keys=True) + '\n')
 
 

@@ -159,6 +159,31 @@ def live_table(doc):
                          f'{fmt(r["latency_ms_p50"], 1)} / {fmt(r["latency_ms_p95"], 1)} / '
                          f'{fmt(r["latency_ms_max"], 1)} | {fmt(r["e3d_received"])} | '
                          f'{r["diagnostics"].get("first model after frames", "-")} frames |')
+    return lines + load_table()
+
+
+#: the reliability.json runs of bench/load.py the live section shows
+LOAD_RUNS = ('load', 'load_2min')
+
+
+def load_table():
+    """The node under sustained load (bench/load.py): frames, latency, memory slope."""
+    runs = load(common.RESULTS, 'reliability') or {}
+    runs = [(key, runs[key]) for key in LOAD_RUNS if key in runs]
+    if not runs:
+        return []
+    lines = ['', 'The node under sustained load, recording (`python -m bench.load`; '
+             '`--seconds 120 --key load_2min`):', '',
+             '| run | tracks x Hz, s | frames sent / published | latency ms p50 / p95 / max | '
+             'RSS MB/min after warm-up | recording complete | commit |',
+             '|---|---|---|---|---|---|---|']
+    for key, r in runs:
+        lat = r['latency_ms']
+        lines.append(f'| {key} | {r["points"]} x {r["rate"]:g}, {r["seconds"]:g} | '
+                     f'{r["sent"]} / {r["frames published"]} | {lat["p50"]} / {lat["p95"]} / '
+                     f'{lat["max"]} | {fmt(r["rss_mb"]["slope_mb_per_min"], 2)} | '
+                     f'{r.get("recording_complete")} | '
+                     f'{r.get("environment", {}).get("git", "-")} |')
     return lines
 
 
