@@ -82,15 +82,22 @@ def test_new_tracks_take_their_neighbours_depth_and_gone_tracks_are_absent():
     assert z[290:].min() >= z[:290].min() - 1e-9 and z[290:].max() <= z[:290].max() + 1e-9
 
 
+def exact_tracker(F):
+    """``(S: (F, 3, P), R: (F, 3, 3), ids, tracker)``: a rank-1 sequence and an exact tracker
+    (no prior) on the model of its frames 0-19."""
+    X, R = low_rank_sequence(F=F, rank=1)
+    S = R @ X
+    P = S.shape[2]
+    ids = np.arange(P, dtype=np.uint32)
+    model = tracking.build_model(S[:20].reshape(60, P), R[:20], ids, np.arange(20))
+    return S, R, ids, tracking.Tracker(model, noise_share=0.0)
+
+
 def test_a_model_swap_carries_the_rotation_through_the_shared_frames():
     """The second model's world is the first one's rotated by Q: tracking goes on from the
     same camera-frame shapes, with no jump."""
-    X, R = low_rank_sequence(F=50, rank=1)
-    F, _, P = X.shape
-    S = R @ X
-    ids = np.arange(P, dtype=np.uint32)
-    first = tracking.build_model(S[:20].reshape(60, P), R[:20], ids, np.arange(20))
-    tracker = tracking.Tracker(first, noise_share=0.0)
+    S, R, ids, tracker = exact_tracker(F=50)
+    F, P = S.shape[0], S.shape[2]
     for f in range(20, 30):
         tracker.track(f, ids, S[f, :2].T)
     Q = random_rotation(np.random.default_rng(5))
@@ -105,12 +112,8 @@ def test_a_late_model_swap_starts_from_its_newest_rotation_and_the_motion_since(
     """The model arrives four frames after its newest one (solved while tracking went on):
     the tracker carries only the motion since that frame onto the model's own rotation of it,
     so the old model's tracking errors on older shared frames do not leak into the new one."""
-    X, R = low_rank_sequence(F=50, rank=1)
-    F, _, P = X.shape
-    S = R @ X
-    ids = np.arange(P, dtype=np.uint32)
-    tracker = tracking.Tracker(tracking.build_model(S[:20].reshape(60, P), R[:20], ids,
-                                                    np.arange(20)), noise_share=0.0)
+    S, R, ids, tracker = exact_tracker(F=50)
+    F, P = S.shape[0], S.shape[2]
     for f in range(20, 30):
         tracker.track(f, ids, S[f, :2].T)
     rng = np.random.default_rng(6)
@@ -130,12 +133,8 @@ def test_the_rotation_stays_a_rotation_over_many_model_swaps():
     """A model every second frame (fresh windows in a row): rounding in the carried rotation
     (here: 0.1 % of scale) must not compound from swap to swap (it once squared its
     determinant's error at each swap, until the rotation was zero)."""
-    X, R = low_rank_sequence(F=120, rank=1)
-    F, _, P = X.shape
-    S = R @ X
-    ids = np.arange(P, dtype=np.uint32)
-    tracker = tracking.Tracker(tracking.build_model(S[:20].reshape(60, P), R[:20], ids,
-                                                    np.arange(20)), noise_share=0.0)
+    S, R, ids, tracker = exact_tracker(F=120)
+    F, P = S.shape[0], S.shape[2]
     tracker.R = 1.001 * tracker.R
     for f in range(20, F):
         if f % 2 == 0:
