@@ -184,6 +184,15 @@ def environment():
             'argv': sys.argv}
 
 
+def merge_result(path, key, figures):
+    """Write ``figures`` into the JSON file ``path`` (under ``key``, or merged at the top),
+    keeping its other keys."""
+    old = json.loads(path.read_text()) if path.exists() else {}
+    new = {**old, key: figures} if key else {**old, **figures}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(new, indent=1, sort_keys=True) + '\n')
+
+
 def write_result(mode, suite, payload):
     """Write ``<out>/<suite>.json``; returns its path."""
     out = mode.out_dir

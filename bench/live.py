@@ -280,14 +280,12 @@ def main(argv=None):
             figures = node_run(args.points, args.rate, args.busy,
                                extra_args=('-p', f'mapping:={mapping}'))
             runs[mapping].append(dict(figures, mapping=mapping))
-    path = common.RESULTS / 'live_node.json'
-    old = json.loads(path.read_text()) if path.exists() else {}
     for mapping, done in runs.items():
         suffix = '' if args.mapping is None else f'_{mapping}'
         figures = median_run(done) if len(done) > 1 else done[0]
-        old[f"{args.points}{'_busy' if args.busy else ''}{suffix}"] = {
-            'environment': common.environment(), **common.jsonable(figures)}
-    path.write_text(json.dumps(old, indent=1, sort_keys=True) + '\n')
+        common.merge_result(common.RESULTS / 'live_node.json',
+                            f"{args.points}{'_busy' if args.busy else ''}{suffix}",
+                            {'environment': common.environment(), **common.jsonable(figures)})
     return 0
 
 

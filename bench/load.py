@@ -220,10 +220,7 @@ def run(seconds=600.0, points=30_000, rate=30.0, solver='rigid', window=30, stri
 
 
 def save(figures, key='load'):
-    RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    old = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
-    old[key] = {'environment': common.environment(), **figures}
-    RESULTS.write_text(json.dumps(old, indent=1, sort_keys=True) + '\n')
+    common.merge_result(RESULTS, key, {'environment': common.environment(), **figures})
 
 
 def main(argv=None):

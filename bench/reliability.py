@@ -15,7 +15,7 @@ import sys
 import tempfile
 import xml.etree.ElementTree as ElementTree
 
-from bench.common import REPO, RESULTS
+from bench.common import merge_result, REPO, RESULTS
 
 #: suite -> (test file, property the tests record, results file, key in it (None: the top))
 SUITES = {
@@ -43,14 +43,6 @@ def suite_properties(junit, names):
             if p.get('name') in names}
 
 
-def merge(path, key, figures):
-    """Write ``figures`` into the JSON file ``path`` (under ``key``, or merged at the top)."""
-    old = json.loads(path.read_text()) if path.exists() else {}
-    new = {**old, key: figures} if key else {**old, **figures}
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(new, indent=1, sort_keys=True) + '\n')
-
-
 def main(argv=None):
     parser = argparse.ArgumentParser(prog='python -m bench.reliability',
                                      description=__doc__.splitlines()[0])
@@ -69,7 +61,7 @@ def main(argv=None):
     for suite in chosen:
         _, name, path, key = SUITES[suite]
         if name in properties:
-            merge(path, key, properties[name])
+            merge_result(path, key, properties[name])
             print(f'{suite}: -> {path}')
     return 0
 
