@@ -36,7 +36,8 @@ from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
 from grass_nrsfm_ros.nrsfm.solver import BLAS_THREADS
 from grass_nrsfm_ros.nrsfm.tracking import build_model, Tracker
 from grass_nrsfm_ros.params import OUTPUTS
-from grass_nrsfm_ros.pipeline import common_ids, DEPTH_FLIP, FrameResult, make_windows
+from grass_nrsfm_ros.pipeline import (common_ids, DEPTH_FLIP, FrameResult, make_windows,
+                                      window_matrix)
 
 #: a bootstrap model is rebuilt from the frames so far when their count reaches each of these
 BOOTSTRAP_AT = (3, 6, 12, 24, 48)
@@ -68,7 +69,7 @@ def bootstrap_model(frames):
         ids = common_ids(ids, f.ids)
     if len(frames) < BOOTSTRAP_AT[0] or ids.size < 4:
         return None
-    W = np.vstack([f.uv[np.searchsorted(f.ids, ids)].T for f in frames])
+    W = window_matrix(frames, ids)
     try:
         R, S = rigid_factorisation(W)
     except (InvalidInputError, np.linalg.LinAlgError):     # no spread, degenerate frames

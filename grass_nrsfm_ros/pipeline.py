@@ -487,8 +487,7 @@ class SlidingWindow:
         else:
             cols = np.searchsorted(window.ids, ids)
             W_window = window.W[:, cols]
-        blocks = [f.uv[np.searchsorted(f.ids, ids)].T for f in context]
-        W = np.vstack(blocks + [W_window]) if blocks else W_window
+        W = np.vstack([window_matrix(context, ids), W_window]) if context else W_window
         return Problem(window.sequence, stamps, ids, W, len(context))
 
     def note_solved(self, sequence, stamps):
