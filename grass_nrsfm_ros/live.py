@@ -334,6 +334,16 @@ def solve_window(windows, window, output='live', published=None, progress=None):
         return results, build_model(solution.S, solution.R, solution.ids, solution.stamps)
 
 
+def solve_figures(solution, seconds):
+    """What the diagnostics show of a solved window: its ``seconds``, the ADMM iterations,
+    the reprojection residual and the tracks thinned, from ``solution`` (a
+    :class:`~grass_nrsfm_ros.pipeline.Solution`)."""
+    report = solution.report
+    return dict(solve_seconds=seconds, iterations=getattr(report, 'iterations', ''),
+                reprojection_residual=solution.residual,
+                tracks_thinned=getattr(report, 'thinned_points', ''))
+
+
 def disagrees_with(solution, published):
     """True if ``solution``'s depth correlates negatively with the depths ``published``
     (``{stamp: (ids, z)}``) on the frames both have (the first model of a sequence keeps the

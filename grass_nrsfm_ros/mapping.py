@@ -36,7 +36,7 @@ import traceback
 
 from threadpoolctl import threadpool_limits
 
-from grass_nrsfm_ros.live import solve_window
+from grass_nrsfm_ros.live import solve_figures, solve_window
 from grass_nrsfm_ros.pipeline import make_windows, Window, window_matrix, WindowError
 
 START_METHOD = 'spawn'
@@ -213,12 +213,7 @@ class _Child:
             with self.cond:
                 self.modelled.add(spec.sequence)
                 self.depths = {k: z for k, z in self.depths.items() if k[0] != spec.sequence}
-        previous = self.windows.previous
-        report = previous.report
-        figures = dict(solve_seconds=time.monotonic() - started,
-                       iterations=getattr(report, 'iterations', ''),
-                       reprojection_residual=previous.residual,
-                       tracks_thinned=getattr(report, 'thinned_points', ''))
+        figures = solve_figures(self.windows.previous, time.monotonic() - started)
         return ('solved', spec, tuple(results), model, figures)
 
     def _cancel_if_stopping(self, iteration, report):
@@ -252,10 +247,10 @@ class MappingProcess:
     """The parent's handle on the mapping child; see the module docstring.
 
     ``on_message(message)`` is called on the receiver thread for each message from the child
-    (``'solved'``, ``'failed'``, ``'dropped'``); ``on_exit(exitcode)`` when the child died
-    unasked (it is restarted, at most ``max_restarts`` times); ``nice``: the child's niceness
-    increment (MAPPING_NICE). ``config``, ``solver_factory``
-    and ``warm_start_class`` are those of :func:`grass_nrsfm_ros.pipeline.make_windows` and
+    (``'solved'``, ``'failed'``, ``'dropped'``); ``on_exit(exitcode, restarted)`` when the
+    child died unasked (it is restarted, at most ``max_restarts`` times); ``nice``: the child's
+    niceness increment (MAPPING_NICE). ``config``, ``solver_factory`` and
+    ``warm_start_class`` are those of :func:`grass_nrsfm_ros.pipeline.make_windows` and
     must pickle (module-level classes).
     """
 
@@ -265,7 +260,7 @@ class MappingProcess:
         self._args = (dict(config), solver_factory, warm_start_class, output)
         self._blas_threads, self._nice = int(blas_threads), int(nice)
         self._on_message = on_message or (lambda message: None)
-        self._on_exit = on_exit or (lambda code: None)
+        self._on_exit = on_exit or (lambda code, restarted: None)
         self._ctx = multiprocessing.get_context(START_METHOD)
         self._lock = threading.Lock()
         self._closing = False

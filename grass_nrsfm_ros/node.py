@@ -54,7 +54,7 @@ from visualization_msgs.msg import Marker
 
 from grass_nrsfm_ros import cloud, mesh, params, qos as offered_qos, rates
 from grass_nrsfm_ros.bag import Recorder
-from grass_nrsfm_ros.live import make_pipeline
+from grass_nrsfm_ros.live import make_pipeline, solve_figures
 from grass_nrsfm_ros.mapping import fix_mmap_threshold, MappingProcess
 from grass_nrsfm_ros.marker import mesh_marker
 from grass_nrsfm_ros.pipeline import FrameError, WindowError
@@ -514,12 +514,8 @@ class ReconstructionNode(Node):
             self._counts['solve_errors'] += 1
             return self.get_logger().error(f'window {window.index} failed: '
                                            f'{type(exc).__name__}: {exc}')
-        report = self.pipeline.previous.report
-        self._publish_solved(results, window, dict(
-            solve_seconds=time.monotonic() - started,
-            iterations=getattr(report, 'iterations', ''),
-            reprojection_residual=self.pipeline.previous.residual,
-            tracks_thinned=getattr(report, 'thinned_points', '')))
+        self._publish_solved(results, window,
+                             solve_figures(self.pipeline.previous, time.monotonic() - started))
 
     def _publish_solved(self, step, window, figures):
         """Publish a solved window's Step (``points`` / ``refined``) and note its figures."""

@@ -9,14 +9,17 @@ import os
 from pathlib import Path
 import select
 import signal
+import time
 
 import numpy as np
 import pytest
 
 from doubles import bending_sheet
 from grass_nrsfm_ros import cloud
+from grass_nrsfm_ros.mapping import MappingProcess
 from grass_nrsfm_ros.nrsfm.measurement import as_frames
 from grass_nrsfm_ros.nrsfm.metrics import e3d
+from grass_nrsfm_ros.params import defaults
 
 rclpy = pytest.importorskip('rclpy')
 from builtin_interfaces.msg import Time  # noqa: E402, I100
@@ -162,3 +165,28 @@ def test_a_dying_child_is_reported_restarted_and_never_outlives_the_node(ros_env
         proc.wait(10)
         assert exits_within(second, 10)
     assert 'the mapping process exited with code -9: restarted it' in log.read_text()
+
+
+def wait_until(condition, timeout=60.0):
+    """Poll ``condition()`` until it holds (True) or ``timeout`` s pass (False)."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.02)
+    return True
+
+
+def test_a_mapping_process_without_on_exit_restarts_its_dead_child():
+    """The handle alone (no ``on_exit``, as a researcher might use it): a killed child is
+    restarted, not a TypeError on the receiver thread."""
+    mapper = MappingProcess(defaults())
+    try:
+        assert wait_until(lambda: mapper.pid is not None)
+        first = mapper.pid
+        os.kill(first, signal.SIGKILL)
+        assert wait_until(lambda: mapper.restarts == 1 and mapper.pid not in (None, first))
+        assert mapper.alive
+    finally:
+        mapper.close()
+    assert not mapper.alive
