@@ -125,8 +125,8 @@ def streaming_table(doc):
 
 def live_table(doc):
     lines = ['| sequence | F x P | points (all frames) | points / windows after 1st model | '
-             "refined | windows | mapping CPU s / window (windows') | tracking ms p95 |",
-             '|---|---|---|---|---|---|---|---|']
+             "refined | windows | mapping CPU s / window (windows') | from the 3rd window | "
+             'tracking ms p95 |', '|---|---|---|---|---|---|---|---|---|']
     for r in doc['rows']:
         after = (f'{fmt(r["e3d_points_after_first_model"])} / '
                  f'{fmt(r.get("e3d_windows_after_first_model"))}')
@@ -134,6 +134,8 @@ def live_table(doc):
                      f'{after} | {fmt(r["e3d_refined"])} | {fmt(r["e3d_windows"])} | '
                      f'{fmt(r["mapping_cpu_per_window_s"], 2)} '
                      f'({fmt(r["windows_cpu_per_window_s"], 2)}) | '
+                     f'{fmt(r.get("mapping_cpu_from_third_window_s"), 2)} '
+                     f'({fmt(r.get("windows_cpu_from_third_window_s"), 2)}) | '
                      f'{fmt(r["tracking_ms_p95"], 1)} |')
     causal = [r for r in doc['rows'] if 'e3d_causal_startup' in r]
     if causal:

@@ -167,7 +167,8 @@ def admm_solve(problem, R, params, spatial, nuclear, report, timer, progress, re
     ``report.solves``; returns ``(S_cam: (3F, P) in W's units, the spent AdmmState)``."""
     t = time.perf_counter()
     F, P = R.shape[0], problem.Wn.shape[1]
-    settings = config.admm_settings(params, F, P, problem.groups, nuclear, spatial)
+    settings = config.admm_settings(params, F, P, problem.groups, nuclear, spatial,
+                                    resumed=problem.init.resumed)
     state = AdmmState(problem.Wn, R, initial_shapes(problem, R), settings, problem.groups,
                       warm=problem.warm, beta=settings.beta0 if problem.init.resumed else None)
     t = timer.add('initialisation', t)
