@@ -15,9 +15,10 @@ def second_difference(F):
     return D
 
 
-@pytest.mark.parametrize('dense_max_frames', [200, 0])     # the dense-inverse and banded paths
+# the dense-inverse path, and the banded one by the frames or by too few points
+@pytest.mark.parametrize('dense_max_frames, points', [(200, None), (0, None), (200, 6)])
 @pytest.mark.parametrize('F', [3, 4, 9])
-def test_banded_solve_matches_dense_normal_equations(F, dense_max_frames, monkeypatch):
+def test_banded_solve_matches_dense_normal_equations(F, dense_max_frames, points, monkeypatch):
     monkeypatch.setattr('grass_nrsfm_ros.nrsfm.priors.DENSE_MAX_FRAMES', dense_max_frames)
     rng = np.random.default_rng(F)
     P, lam, beta = 6, 2.5, 0.3
@@ -30,8 +31,9 @@ def test_banded_solve_matches_dense_normal_equations(F, dense_max_frames, monkey
     A += lam * np.kron(D.T @ D, np.eye(3)) + beta * np.eye(3 * F)
     b = (rhs + R[:, :2].transpose(0, 2, 1) @ W).reshape(3 * F, P)
     expected = np.linalg.solve(A, b).reshape(F, 3, P)
-    np.testing.assert_allclose(TemporalSmoothness(R, lam).solve(W, rhs, beta), expected,
-                               atol=1e-10)
+    smoother = TemporalSmoothness(R, lam, points)
+    assert smoother.dense == (dense_max_frames > 0 and points is None)
+    np.testing.assert_allclose(smoother.solve(W, rhs, beta), expected, atol=1e-10)
 
 
 def test_energy_is_half_lambda_squared_second_differences():

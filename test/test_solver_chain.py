@@ -139,3 +139,25 @@ def test_a_resumed_warm_start_runs_the_cold_schedule_and_stages():
     assert plain.report.iterations < longer.report.iterations
     with pytest.raises(InvalidInputError, match='resumed'):
         solver.fit(seq.W, init=WarmStart(S=first.S, resumed=True))
+
+
+@pytest.mark.parametrize('points, smoothed', [(60, True), (300, False)])
+def test_resumed_solves_take_the_smoothness_prior_on_sparse_tracks(points, smoothed,
+                                                                   monkeypatch):
+    """Cold solves and resumed solves of sparse tracks take the prior; resumed solves of
+    dense tracks (inextensible depths instead) and solves from other given shapes do not."""
+    seq = make_sequence('waving', n_frames=20, n_points=points, seed=1)
+    solver = GrassmannNRSfM()
+    first = solver.fit(seq.W, init=WarmStart(R=seq.R))
+    warm = WarmStart(R=first.R, S=first.S, groups=first.groups)
+    states = []
+
+    def recording(*args, **kwargs):
+        states.append(admm.AdmmState(*args, **kwargs))
+        return states[-1]
+    monkeypatch.setattr('grass_nrsfm_ros.nrsfm.solver.AdmmState', recording)
+    solver.fit(seq.W, init=WarmStart(R=seq.R))
+    solver.fit(seq.W, init=warm)
+    solver.fit(seq.W, init=replace(warm, resumed=True))
+    cold, given, resumed = (states[i].smoother is not None for i in (0, 1, -1))
+    assert cold and not given and resumed == smoothed

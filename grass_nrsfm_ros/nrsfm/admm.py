@@ -127,6 +127,7 @@ class AdmmCheckpoint:
     t_bases: list
     arrays: dict
     nuc_jt: float = 0.0
+    smooth: bool = None         # the smoothness prior (None: off when warm)
 
 
 @dataclass
@@ -188,7 +189,8 @@ class AdmmState:
     from world-frame initial shapes ``S0: (F, 3, P)``; ``groups: (P,)`` initial spatial labels
     (None: k-means++ on S0, one group with the spatial branch off); ``warm``: S0 carries an
     earlier solution (the warm beta0, no smoothness prior); ``beta``: the penalty to start at
-    instead (None: the settings' warm_beta0 or beta0).
+    instead (None: the settings' warm_beta0 or beta0); ``smooth``: the smoothness prior on or
+    off instead (None: off when warm).
 
     One iteration makes two sweeps over column blocks:
 
@@ -198,13 +200,14 @@ class AdmmState:
        the Gram in between, the gap ``max |S# - S|`` and ``Y1 += beta (S# - S)``.
     """
 
-    def __init__(self, Wn, R, S0, settings, groups=None, warm=False, beta=None):
+    def __init__(self, Wn, R, S0, settings, groups=None, warm=False, beta=None, smooth=None):
         F, P = R.shape[0], Wn.shape[1]
         s = settings
         labels = groups if groups is not None else (
             gm.initial_groups(S0.reshape(3 * F, P), s.K_s, s.random_state)
             if s.spatial else np.zeros(P, dtype=np.int64))
-        self._layout(Wn, R, settings, labels, np.argsort(labels, kind='stable'), warm)
+        self._layout(Wn, R, settings, labels, np.argsort(labels, kind='stable'), warm,
+                     not warm if smooth is None else smooth)
         self.iteration = 0
         self.beta = beta if beta is not None else s.warm_beta0 if warm else s.beta0
         self.beta_reached_max = False
@@ -227,11 +230,11 @@ class AdmmState:
         self.Omega_t = gm.projection_kernel(gm.block_cross(G, self.t_edges, self.t_bases),
                                             [v.shape[1] for v, _ in self.t_bases], s.delta)
 
-    def _layout(self, Wn, R, settings, labels, order, warm):
+    def _layout(self, Wn, R, settings, labels, order, warm, smooth):
         """Sizes, column order, stored tracks and rotations, block tiling and buffers."""
         F, P = R.shape[0], Wn.shape[1]
         s = settings
-        self.F, self.P, self.s, self.R, self.warm = F, P, s, R, warm
+        self.F, self.P, self.s, self.R, self.warm, self.smooth = F, P, s, R, warm, smooth
         self.centred, self.gamma = s.centred, s.gamma
         # weighted: per-singular-value weights (ascending, as eigh orders the Gram) replace gamma
         self.weights = partial_weights(Wn, R)[::-1].copy() if s.weighted else None
@@ -252,9 +255,8 @@ class AdmmState:
         self.buffers = [Buffer(3 * F * self.width, dt) for _ in range(3)]
         self.wide = Buffer(3 * F * self.width)                     # float64 copy of a block
         self.X = np.empty(3 * F * P, dtype=dt)   # X = S - Y1/beta, block-major (blocked_view)
-        # the smoothness prior serves cold solves; a warm start already carries a solution
-        self.smoother = (TemporalSmoothness(R, smoothness_weight(Wn, s.smoothness))
-                         if s.smoothness > 0 and not warm else None)
+        self.smoother = (TemporalSmoothness(R, smoothness_weight(Wn, s.smoothness), P)
+                         if s.smoothness > 0 and smooth else None)
 
     # resumable state ---------------------------------------------------------------------------
     def checkpoint(self):
@@ -272,7 +274,7 @@ class AdmmState:
             s_bases=[b.copy() for b in self.s_bases],
             t_bases=[(v.copy(), sv.copy()) for v, sv in self.t_bases],
             arrays={name: np.array(getattr(self, name)) for name in STATE_ARRAYS},
-            nuc_jt=self.nuc_jt)
+            nuc_jt=self.nuc_jt, smooth=self.smooth)
 
     @classmethod
     def resume(cls, Wn, R, checkpoint, settings):
@@ -280,7 +282,8 @@ class AdmmState:
         ``R: (F, 3, 3)``; iterating it continues the run that took the checkpoint."""
         c = checkpoint
         state = cls.__new__(cls)
-        state._layout(Wn, R, settings, np.asarray(c.labels), np.asarray(c.order), c.warm)
+        state._layout(Wn, R, settings, np.asarray(c.labels), np.asarray(c.order), c.warm,
+                      not c.warm if c.smooth is None else c.smooth)
         state.iteration, state.beta = c.iteration, c.beta
         state.beta_reached_max, state.moves, state.nuc_jt = c.beta_reached_max, c.moves, c.nuc_jt
         state.S = np.asarray(c.S)[:, :, state.order].astype(state.dtype)

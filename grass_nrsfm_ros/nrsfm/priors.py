@@ -30,19 +30,22 @@ def second_difference_bands(F):
 #: up to this many frames the S update multiplies by the dense inverse of its (3F, 3F) system
 #: (one GEMM, cache-friendly) instead of the banded solve (LAPACK pbtrs, one column at a time):
 #: 99 frames x 28,880 points 0.11 s vs 0.27 s CPU per solve, same result to 1e-15; the inverse
-#: costs O(F^3) per beta, which stays small up to here
+#: costs O(F^3) per beta, which stays small up to here, and is only formed for at least 3F
+#: points (fewer are solved banded: the inverse would cost more than solving them)
 DENSE_MAX_FRAMES = 200
 
 
 class TemporalSmoothness:
     """Banded solver of the S-update with the smoothness prior.
 
-    ``R: (F, 3, 3)`` world->camera, ``lam``: absolute weight on unit-RMS tracks.
+    ``R: (F, 3, 3)`` world->camera, ``lam``: absolute weight on unit-RMS tracks, ``points``:
+    the tracks P of every S update (all blocks together; None: many).
     """
 
-    def __init__(self, R, lam):
+    def __init__(self, R, lam, points=None):
         F = R.shape[0]
         self.F, self.lam = F, float(lam)
+        self.dense = F <= DENSE_MAX_FRAMES and (points is None or points >= 3 * F)
         self.R = R
         # data part, lower banded: A[3f+i, 3f+j] = (R_f^T P R_f)[i, j] for i >= j
         data = np.einsum('fki,fkj->fij', R[:, :2, :], R[:, :2, :])
@@ -60,12 +63,13 @@ class TemporalSmoothness:
 
     def _solver_at(self, beta):
         """``solve(b: (3F, P)) -> x: (3F, P)`` for the system at ``beta`` (factored once per
-        beta): the dense inverse up to DENSE_MAX_FRAMES frames, else the banded Cholesky."""
+        beta): the dense inverse up to DENSE_MAX_FRAMES frames and from 3F points, else the
+        banded Cholesky."""
         if beta != self._beta:
             ab = self.ab.copy()
             ab[0] += beta
             factor = cholesky_banded(ab, lower=True, check_finite=False)
-            if self.F <= DENSE_MAX_FRAMES:
+            if self.dense:
                 self._solve = cho_solve_banded((factor, True), np.eye(3 * self.F),
                                                check_finite=False).__matmul__
             else:

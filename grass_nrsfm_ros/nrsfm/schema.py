@@ -141,7 +141,8 @@ SOLVER_PARAMS = (
             'unit-RMS tracks.'),
     _number('smoothness', 1e-4, 'Temporal smoothness prior (lam/2)||D S||^2 on the world '
             'shapes (D: second differences over frames), relative to the roughness of the '
-            'tracks; 0: off. Cold solves only (not when initial shapes are given).'),
+            'tracks; 0: off. Cold solves, and resumed ones of sparse tracks (where the '
+            'inextensible refinement does not apply); not from other given shapes.'),
     _number('lambda1', 1.0, 'Weight of the spatial self-expression error ||T_s - T_s C_s||^2.'),
     _number('lambda2', 1.0, 'Weight of the temporal self-expression error ||T_t - T_t C_t||^2.'),
     _number('lambda3', 0.1, 'Nuclear-norm weight on the spatial coefficients C_s.'),

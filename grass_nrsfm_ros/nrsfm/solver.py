@@ -161,6 +161,15 @@ def first_nuclear(nuclear, report, problem):
     return 'centred'
 
 
+def smoothed(problem, params):
+    """Whether the ADMM of ``problem`` takes the temporal smoothness prior: cold solves, and
+    resumed ones where the inextensible refinement does not apply (sparse tracks); not from
+    other given shapes (docs/decisions/0409)."""
+    if not problem.warm:
+        return True
+    return problem.init.resumed and not refinement.applies(problem, params)
+
+
 def admm_solve(problem, R, params, spatial, nuclear, report, timer, progress, reason):
     """One run of Algorithm 1 from the problem's initial shapes with the norm ``nuclear``.
     Fills the report's iteration fields and adds ``(reason, F, P, iterations)`` to
@@ -170,7 +179,8 @@ def admm_solve(problem, R, params, spatial, nuclear, report, timer, progress, re
     settings = config.admm_settings(params, F, P, problem.groups, nuclear, spatial,
                                     resumed=problem.init.resumed)
     state = AdmmState(problem.Wn, R, initial_shapes(problem, R), settings, problem.groups,
-                      warm=problem.warm, beta=settings.beta0 if problem.init.resumed else None)
+                      warm=problem.warm, beta=settings.beta0 if problem.init.resumed else None,
+                      smooth=smoothed(problem, params))
     t = timer.add('initialisation', t)
     record = AdmmRun()
     report.iterations, report.objective, report.gaps = 0, record.objective, record.gaps
