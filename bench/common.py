@@ -15,6 +15,7 @@ import sys
 import time
 
 import numpy as np
+from threadpoolctl import threadpool_info
 
 from grass_nrsfm_ros.nrsfm import GrassmannNRSfM
 from grass_nrsfm_ros.nrsfm.baselines import bmm
@@ -181,7 +182,15 @@ def environment():
             'git': commit, 'python': platform.python_version(), 'numpy': np.__version__,
             'machine': platform.machine(), 'cpus': os.cpu_count(),
             'blas_threads': os.environ.get('OPENBLAS_NUM_THREADS'),
-            'argv': sys.argv}
+            'blas_kernel': blas_kernel(), 'argv': sys.argv}
+
+
+def blas_kernel():
+    """The BLAS kernel numpy's OpenBLAS runs (its 'architecture', which OPENBLAS_CORETYPE
+    sets), or None where threadpoolctl does not report one."""
+    kernels = {info.get('architecture') for info in threadpool_info()
+               if info.get('internal_api') == 'openblas'} - {None}
+    return ', '.join(sorted(kernels)) or None
 
 
 def merge_result(path, key, figures):

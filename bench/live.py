@@ -17,7 +17,8 @@
     python -m bench.live --node [--points 10000] [--busy] [--mapping process]
 
 Results: ``bench/results/live.json`` (suite) and ``live_node.json`` (``--node``; keyed by
-points, ``_busy``, and ``_<mapping>`` when ``--mapping`` is given).
+points, ``_busy``, ``_<mapping>`` when ``--mapping`` is given, and ``_<kernel>`` where
+OPENBLAS_CORETYPE sets the BLAS kernel).
 """
 import argparse
 import json
@@ -291,8 +292,10 @@ def main(argv=None):
             figures = node_run(args.points, args.rate, args.busy,
                                extra_args=('-p', f'mapping:={mapping}'))
             runs[mapping].append(dict(figures, mapping=mapping))
+    coretype = os.environ.get('OPENBLAS_CORETYPE', '').lower()
+    kernel = f'_{coretype}' if coretype else ''
     for mapping, done in runs.items():
-        suffix = '' if args.mapping is None else f'_{mapping}'
+        suffix = ('' if args.mapping is None else f'_{mapping}') + kernel
         figures = median_run(done) if len(done) > 1 else done[0]
         common.merge_result(common.RESULTS / 'live_node.json',
                             f"{args.points}{'_busy' if args.busy else ''}{suffix}",
