@@ -117,7 +117,7 @@ class AdmmCheckpoint:
     beta: float
     beta_reached_max: bool
     moves: int
-    warm: bool
+    smooth: bool                # the smoothness prior on
     S: np.ndarray
     S_sharp: np.ndarray
     Y1: np.ndarray
@@ -127,7 +127,6 @@ class AdmmCheckpoint:
     t_bases: list
     arrays: dict
     nuc_jt: float = 0.0
-    smooth: bool = None         # the smoothness prior (None: off when warm)
 
 
 @dataclass
@@ -206,7 +205,7 @@ class AdmmState:
         labels = groups if groups is not None else (
             gm.initial_groups(S0.reshape(3 * F, P), s.K_s, s.random_state)
             if s.spatial else np.zeros(P, dtype=np.int64))
-        self._layout(Wn, R, settings, labels, np.argsort(labels, kind='stable'), warm,
+        self._layout(Wn, R, settings, labels, np.argsort(labels, kind='stable'),
                      not warm if smooth is None else smooth)
         self.iteration = 0
         self.beta = beta if beta is not None else s.warm_beta0 if warm else s.beta0
@@ -230,11 +229,11 @@ class AdmmState:
         self.Omega_t = gm.projection_kernel(gm.block_cross(G, self.t_edges, self.t_bases),
                                             [v.shape[1] for v, _ in self.t_bases], s.delta)
 
-    def _layout(self, Wn, R, settings, labels, order, warm, smooth):
+    def _layout(self, Wn, R, settings, labels, order, smooth):
         """Sizes, column order, stored tracks and rotations, block tiling and buffers."""
         F, P = R.shape[0], Wn.shape[1]
         s = settings
-        self.F, self.P, self.s, self.R, self.warm, self.smooth = F, P, s, R, warm, smooth
+        self.F, self.P, self.s, self.R, self.smooth = F, P, s, R, smooth
         self.centred, self.gamma = s.centred, s.gamma
         # weighted: per-singular-value weights (ascending, as eigh orders the Gram) replace gamma
         self.weights = partial_weights(Wn, R)[::-1].copy() if s.weighted else None
@@ -269,12 +268,12 @@ class AdmmState:
         labels[self.order] = self.labels
         return AdmmCheckpoint(
             iteration=self.iteration, beta=self.beta, beta_reached_max=self.beta_reached_max,
-            moves=self.moves, warm=self.warm, S=original(self.S), S_sharp=original(self.Ssh),
+            moves=self.moves, smooth=self.smooth, S=original(self.S), S_sharp=original(self.Ssh),
             Y1=original(self.Y1), labels=labels, order=self.order.copy(),
             s_bases=[b.copy() for b in self.s_bases],
             t_bases=[(v.copy(), sv.copy()) for v, sv in self.t_bases],
             arrays={name: np.array(getattr(self, name)) for name in STATE_ARRAYS},
-            nuc_jt=self.nuc_jt, smooth=self.smooth)
+            nuc_jt=self.nuc_jt)
 
     @classmethod
     def resume(cls, Wn, R, checkpoint, settings):
@@ -282,8 +281,7 @@ class AdmmState:
         ``R: (F, 3, 3)``; iterating it continues the run that took the checkpoint."""
         c = checkpoint
         state = cls.__new__(cls)
-        state._layout(Wn, R, settings, np.asarray(c.labels), np.asarray(c.order), c.warm,
-                      not c.warm if c.smooth is None else c.smooth)
+        state._layout(Wn, R, settings, np.asarray(c.labels), np.asarray(c.order), c.smooth)
         state.iteration, state.beta = c.iteration, c.beta
         state.beta_reached_max, state.moves, state.nuc_jt = c.beta_reached_max, c.moves, c.nuc_jt
         state.S = np.asarray(c.S)[:, :, state.order].astype(state.dtype)
