@@ -60,6 +60,43 @@ def test_tracking_an_exact_low_rank_sequence_reproduces_its_shapes():
         np.testing.assert_allclose(out.xyz[:, 2], S[f, 2] - S[f, 2].mean(), atol=1e-6)
 
 
+def test_coefficients_are_the_map_estimate_inside_the_bound_and_on_it_beyond():
+    rng = np.random.default_rng(3)
+    A = rng.standard_normal((400, 5))
+    var = np.array([4.0, 2.0, 1.0, 0.5, 0.1])
+    G, sigma2 = A.T @ A, 2.0
+    inside = A @ (0.5 * np.sqrt(var)) + 0.01 * rng.standard_normal(400)
+    c = tracking.map_coefficients(G, A.T @ inside, var, sigma2)
+    np.testing.assert_allclose(c, np.linalg.solve(G + np.diag(sigma2 / var), A.T @ inside),
+                               rtol=1e-8)
+    beyond = A @ (40.0 * np.sqrt(var))                       # 40 sigma per mode
+    c = tracking.map_coefficients(G, A.T @ beyond, var, sigma2, bound=9.0)
+    assert np.sum(c ** 2 / var) == pytest.approx(9.0 * 5, rel=1e-2)
+    # still a ridge solution of the same problem, with the prior's weight raised
+    m = np.median((A.T @ beyond - G @ c) / (sigma2 * c / var))
+    np.testing.assert_allclose(c, np.linalg.solve(G + np.diag(m * sigma2 / var), A.T @ beyond),
+                               rtol=1e-6)
+    assert m > 1.0
+    # no prior: least squares, unbounded
+    np.testing.assert_allclose(tracking.map_coefficients(G, A.T @ beyond, var, 0.0),
+                               40.0 * np.sqrt(var), rtol=1e-8)
+
+
+def test_a_stale_model_is_not_extrapolated_past_its_bound():
+    X, R = low_rank_sequence(F=60, rank=3)
+    F, _, P = X.shape
+    S = R @ X
+    ids = np.arange(P, dtype=np.uint32)
+    model = tracking.build_model(S[:20].reshape(60, P), R[:20], ids, np.arange(20))
+    tracker = tracking.Tracker(model)
+    far = X[30] + 30.0 * np.einsum('k,kdp->dp', np.sqrt(model.variances), model.modes)
+    out = tracker.track(30, ids, (R[30] @ far)[:2].T)
+    bound = tracking.MODE_BOUND * model.rank
+    assert np.sum(out.coefficients ** 2 / model.variances) <= bound * 1.01
+    assert np.sum(tracking.Tracker(model, noise_share=0.0).track(
+        30, ids, (R[30] @ far)[:2].T).coefficients ** 2 / model.variances) > 10 * bound
+
+
 def test_new_tracks_take_their_neighbours_depth_and_gone_tracks_are_absent():
     X, R = low_rank_sequence(P=400)
     S = R @ X

@@ -15,7 +15,10 @@ subset of the model's tracks) by alternating
   ``(A^T A + sigma^2 diag(1 / var)) c = A^T b`` (``A: (2P, r)`` the projected modes, ``b``
   the data less the projected mean), optionally pulled towards the previous frame's
   coefficients by ``temporal_prior``. The prior lets many modes be kept (``MODE_ENERGY``
-  0.9999): weak modes are shrunk instead of fitted freely or dropped.
+  0.9999): weak modes are shrunk instead of fitted freely or dropped. The whitened
+  coefficients ``c_k / sqrt(var_k)`` stay within ``MODE_BOUND`` per mode (the prior's weight
+  raised where the MAP estimate leaves that ball), so a model that has grown stale is not
+  extrapolated far past the shapes it was built from.
 
 The frame's camera-frame shape is ``x, y`` = its centred data, ``z`` = the depth of
 ``R X`` (centred), as the windows publish. Tracks the model lacks take the depth of their
@@ -29,6 +32,7 @@ Cost per frame: O(P r) numpy, no per-point Python.
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import brentq
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
@@ -45,6 +49,9 @@ FIT_TRACKS = 4000
 #: image noise variance per coordinate assumed by the coefficients' Gaussian prior, as a share
 #: of the frame's mean squared centred image coordinate (3 % RMS noise)
 NOISE_SHARE = 1e-3
+#: the mode coefficients' whitened squared norm is kept within this many per mode (3 sigma
+#: RMS): a stale model is not extrapolated far past the shapes it was built from
+MODE_BOUND = 9.0
 #: alternations of rotation and coefficients per frame, Gauss-Newton steps per rotation fit
 ALTERNATIONS = 4
 GN_STEPS = 2
@@ -135,16 +142,15 @@ def fit_rotation(w, X, R, steps=GN_STEPS):
 
 
 def fit_frame(w, mean, modes, R, c, prior=0.0, alternations=ALTERNATIONS, variances=None,
-              noise_share=NOISE_SHARE):
+              noise_share=NOISE_SHARE, bound=MODE_BOUND):
     """``(R: (3, 3), c: (r,), X: (3, P))`` fitting ``w: (2, P)`` (centred) to the model shape
     ``mean + sum_k c_k modes_k`` (``mean: (3, P)``, ``modes: (r, 3, P)``, both centred over
     these tracks), starting from ``R`` and ``c``; ``prior`` pulls ``c`` towards the given one;
     ``variances: (r,)`` the Gaussian prior's (None: no prior), image noise variance
-    ``noise_share * mean(w^2)``."""
+    ``noise_share * mean(w^2)``; the coefficients stay within ``sum_k c_k^2 / var_k <=
+    bound * r`` (:func:`map_coefficients`)."""
     c_prior = c
-    shrink = 0.0
-    if variances is not None and modes.shape[0]:
-        shrink = noise_share * float(np.mean(w ** 2)) / variances             # (r,)
+    sigma2 = noise_share * float(np.mean(w ** 2)) if variances is not None else 0.0
     X = mean + np.tensordot(c, modes, axes=1)
     for _ in range(alternations):
         R = fit_rotation(w, X, R)
@@ -153,10 +159,36 @@ def fit_frame(w, mean, modes, R, c, prior=0.0, alternations=ALTERNATIONS, varian
             b = (w - R[:2] @ mean).ravel()
             G = A.T @ A
             lam = prior * np.trace(G) / max(G.shape[0], 1)
-            H = G + np.diag(shrink + lam + 1e-12 * np.trace(G) + 1e-300)
-            c = np.linalg.solve(H, A.T @ b + lam * c_prior)
+            scale = np.ones(G.shape[0]) if variances is None else variances
+            c = map_coefficients(G, A.T @ b, scale, sigma2, lam, c_prior, bound)
             X = mean + np.tensordot(c, modes, axes=1)
     return R, c, X
+
+
+def map_coefficients(G, g, variances, sigma2, lam=0.0, c_prior=None, bound=MODE_BOUND):
+    """Mode coefficients ``(r,)`` minimising ``||A c - b||^2 + m sigma2 sum_k c_k^2 / var_k
+    + lam ||c - c_prior||^2`` (``G = A^T A: (r, r)``, ``g = A^T b: (r,)``) with m = 1 (the MAP
+    estimate) or, where that leaves the frame's whitened coefficients ``u = c / sqrt(var)``
+    beyond ``|u|^2 <= bound * r``, the smallest m > 1 that brings them onto it: a model does
+    not extrapolate its modes far past the shapes it was built from. ``sigma2`` 0: least
+    squares, unbounded."""
+    sd = np.sqrt(variances)
+    rhs = g + (lam * c_prior if lam else 0.0)
+    K = (G + lam * np.eye(G.shape[0])) * np.outer(sd, sd)            # whitened data term
+    K[np.diag_indices_from(K)] += 1e-12 * np.trace(K) + 1e-300
+    kappa, Q = np.linalg.eigh(K)
+    q = Q.T @ (sd * rhs)
+
+    def excess(log_m):
+        u = q / (np.maximum(kappa, 0.0) + sigma2 * np.exp(log_m))
+        return float(u @ u) - bound * G.shape[0]
+    log_m = 0.0
+    if sigma2 > 0 and excess(0.0) > 0:
+        high = 1.0
+        while excess(high) > 0 and high < 200:
+            high *= 2
+        log_m = brentq(excess, 0.0, high, xtol=1e-3)
+    return sd * (Q @ (q / (np.maximum(kappa, 0.0) + sigma2 * np.exp(log_m))))
 
 
 class Tracker:
