@@ -151,6 +151,7 @@ def fit_frame(w, mean, modes, R, c, prior=0.0, alternations=ALTERNATIONS, varian
     bound * r`` (:func:`map_coefficients`)."""
     c_prior = c
     sigma2 = noise_share * float(np.mean(w ** 2)) if variances is not None else 0.0
+    scale = np.ones(modes.shape[0]) if variances is None else variances
     X = mean + np.tensordot(c, modes, axes=1)
     for _ in range(alternations):
         R = fit_rotation(w, X, R)
@@ -159,7 +160,6 @@ def fit_frame(w, mean, modes, R, c, prior=0.0, alternations=ALTERNATIONS, varian
             b = (w - R[:2] @ mean).ravel()
             G = A.T @ A
             lam = prior * np.trace(G) / max(G.shape[0], 1)
-            scale = np.ones(G.shape[0]) if variances is None else variances
             c = map_coefficients(G, A.T @ b, scale, sigma2, lam, c_prior, bound)
             X = mean + np.tensordot(c, modes, axes=1)
     return R, c, X
@@ -177,10 +177,14 @@ def map_coefficients(G, g, variances, sigma2, lam=0.0, c_prior=None, bound=MODE_
     K = (G + lam * np.eye(G.shape[0])) * np.outer(sd, sd)            # whitened data term
     K[np.diag_indices_from(K)] += 1e-12 * np.trace(K) + 1e-300
     kappa, Q = np.linalg.eigh(K)
+    kappa = np.maximum(kappa, 0.0)
     q = Q.T @ (sd * rhs)
 
+    def whitened(log_m):                      # u in K's eigenbasis at weight m = e^log_m
+        return q / (kappa + sigma2 * np.exp(log_m))
+
     def excess(log_m):
-        u = q / (np.maximum(kappa, 0.0) + sigma2 * np.exp(log_m))
+        u = whitened(log_m)
         return float(u @ u) - bound * G.shape[0]
     log_m = 0.0
     if sigma2 > 0 and excess(0.0) > 0:
@@ -188,7 +192,7 @@ def map_coefficients(G, g, variances, sigma2, lam=0.0, c_prior=None, bound=MODE_
         while excess(high) > 0 and high < 200:
             high *= 2
         log_m = brentq(excess, 0.0, high, xtol=1e-3)
-    return sd * (Q @ (q / (np.maximum(kappa, 0.0) + sigma2 * np.exp(log_m))))
+    return sd * (Q @ whitened(log_m))
 
 
 class Tracker:
