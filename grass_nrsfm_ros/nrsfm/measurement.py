@@ -11,6 +11,10 @@ Shapes used across the core (F frames, P points):
 """
 import numpy as np
 
+#: a wide matrix's SVD goes through its Gram matrix when it has more than this many columns
+#: per row (:func:`economy_svd`)
+GRAM_COLUMNS_PER_ROW = 10
+
 
 class InvalidInputError(ValueError):
     """Raised when an input array breaks the conventions above (with the offending value)."""
@@ -120,3 +124,17 @@ def nearest_rotation(M):
     U, _, Vt = np.linalg.svd(M)
     U[..., :, -1] *= np.where(np.linalg.det(U @ Vt) < 0, -1.0, 1.0)[..., None]
     return U @ Vt
+
+
+def economy_svd(M):
+    """``(U: (m, k), d: (k,), Vt: (k, n))``, the economy SVD of ``M: (m, n)``, k = min(m, n).
+    A wide M (``n > GRAM_COLUMNS_PER_ROW * m``) goes through its ``m x m`` Gram matrix
+    (``O(m^2 n)``, no n-sized factorisation: 99 x 28,880 in 0.03 s instead of 1.0 s);
+    singular values below ~1e-8 of the largest are then not resolved."""
+    if M.shape[1] <= GRAM_COLUMNS_PER_ROW * M.shape[0]:
+        return np.linalg.svd(M, full_matrices=False)
+    vals, vecs = np.linalg.eigh(M @ M.T)
+    d = np.sqrt(np.maximum(vals[::-1], 0.0))
+    U = np.ascontiguousarray(vecs[:, ::-1])
+    Vt = (U.T @ M) / np.where(d > 0, d, 1.0)[:, None]
+    return U, d, Vt

@@ -36,7 +36,7 @@ from scipy.optimize import brentq
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from .measurement import nearest_rotation
+from .measurement import economy_svd, nearest_rotation
 
 #: modes kept: the fewest whose energy reaches this share of the deviations' energy
 MODE_ENERGY = 0.9999
@@ -104,7 +104,7 @@ def build_model(S, R, ids, stamps, *, energy=MODE_ENERGY, max_modes=MAX_MODES):
     X = R.transpose(0, 2, 1) @ S                              # (F, 3, P) world shapes
     mean = X.mean(axis=0)
     D = (X - mean).reshape(F, 3 * P)
-    _, s, Vt = np.linalg.svd(D, full_matrices=False)
+    _, s, Vt = economy_svd(D)
     share = np.cumsum(s ** 2) / max(float(np.sum(s ** 2)), 1e-300)
     rank = int(min(np.searchsorted(share, energy) + 1, max_modes, max(F - 1, 0),
                    np.sum(s > MODE_FLOOR * np.linalg.norm(mean) * np.sqrt(F))))
