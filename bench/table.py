@@ -154,13 +154,14 @@ def live_table(doc):
     if node:
         lines += ['', 'The node over DDS, 300 frames of the slow face at 30 Hz '
                   '(`python -m bench.live --node`):', '',
-                  '| run | frames back | latency ms p50 / p95 / max | e3D | first model after |',
-                  '|---|---|---|---|---|']
+                  '| run | frames back | latency ms p50 / p95 / max | e3D | first model after | '
+                  'commit |', '|---|---|---|---|---|---|']
         for key, r in sorted(node.items()):
             lines.append(f'| {key} tracks | {r["frames_received"]} / {r["frames"]} | '
                          f'{fmt(r["latency_ms_p50"], 1)} / {fmt(r["latency_ms_p95"], 1)} / '
                          f'{fmt(r["latency_ms_max"], 1)} | {fmt(r["e3d_received"])} | '
-                         f'{r["diagnostics"].get("first model after frames", "-")} frames |')
+                         f'{r["diagnostics"].get("first model after frames", "-")} frames | '
+                         f'{r.get("environment", {}).get("git", "-")} |')
     return lines + load_table()
 
 
