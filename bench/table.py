@@ -161,7 +161,7 @@ def live_table(doc):
                          f'{fmt(r["latency_ms_p50"], 1)} / {fmt(r["latency_ms_p95"], 1)} / '
                          f'{fmt(r["latency_ms_max"], 1)} | {fmt(r["e3d_received"])} | '
                          f'{r["diagnostics"].get("first model after frames", "-")} frames | '
-                         f'{r.get("environment", {}).get("git", "-")} |')
+                         f'{r.get("environment", {}).get("git") or "-"} |')
     return lines + load_table()
 
 

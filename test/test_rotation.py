@@ -4,7 +4,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from grass_nrsfm_ros.nrsfm.baselines import bmm
-from grass_nrsfm_ros.nrsfm.measurement import economy_svd, GRAM_COLUMNS_PER_ROW, validate_rotations
+from grass_nrsfm_ros.nrsfm.measurement import (economy_svd, GRAM_COLUMNS_PER_ROW,
+                                               validate_rotations)
 from grass_nrsfm_ros.nrsfm.metrics import e3d, rotation_error
 from grass_nrsfm_ros.nrsfm.rotation import (choose_rank, estimate_rotations,
                                             rigid_factorisation, rotation_spread,
@@ -27,13 +28,17 @@ def smooth_rotations(F, rng, step_deg=4.0):
 
 
 @pytest.mark.parametrize('columns', [GRAM_COLUMNS_PER_ROW * 12, GRAM_COLUMNS_PER_ROW * 12 + 1])
-def test_economy_svd_of_a_wide_matrix_matches_lapack_on_both_paths(columns):
-    """12 rows of decaying spectrum: at and past the Gram threshold, the leading singular
-    values and their subspaces agree with LAPACK's SVD, and U d Vt rebuilds the matrix."""
+def test_economy_svd_of_a_wide_matrix_matches_lapack_on_both_paths(columns, monkeypatch):
+    """12 rows of decaying spectrum: at the Gram threshold LAPACK's SVD runs, past it the Gram
+    matrix's eigh; either way the singular values and leading subspaces agree with LAPACK's
+    SVD, and U d Vt rebuilds the matrix."""
     rng = np.random.default_rng(3)
     M = (rng.normal(size=(12, 12)) * np.logspace(0, -4, 12)) @ rng.normal(size=(12, columns))
-    U, d, Vt = economy_svd(M)
     _, d_ref, Vt_ref = np.linalg.svd(M, full_matrices=False)
+    eigh, calls = np.linalg.eigh, []
+    monkeypatch.setattr(np.linalg, 'eigh', lambda A: calls.append(A.shape) or eigh(A))
+    U, d, Vt = economy_svd(M)
+    assert calls == ([(12, 12)] if columns > GRAM_COLUMNS_PER_ROW * 12 else [])
     assert U.shape == (12, 12) and Vt.shape == (12, columns)
     np.testing.assert_allclose(d, d_ref, rtol=1e-6)
     np.testing.assert_allclose(np.abs(np.sum(Vt[:6] * Vt_ref[:6], axis=1)), 1.0, atol=1e-8)
