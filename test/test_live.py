@@ -60,6 +60,20 @@ def test_tracking_an_exact_low_rank_sequence_reproduces_its_shapes():
         np.testing.assert_allclose(out.xyz[:, 2], S[f, 2] - S[f, 2].mean(), atol=1e-6)
 
 
+def test_a_rank_zero_model_is_the_mean_shape_without_an_svd(monkeypatch):
+    X, R = low_rank_sequence(F=12)
+    S = (R @ X).reshape(36, -1)
+    ids = np.arange(X.shape[2], dtype=np.uint32)
+    full = tracking.build_model(S, R, ids, np.arange(12))
+    monkeypatch.setattr(tracking, 'economy_svd', lambda M: pytest.fail('SVD for rank 0'))
+    mean_only = tracking.build_model(S, R, ids, np.arange(12), max_modes=0)
+    assert mean_only.rank == 0 and full.rank == 2
+    np.testing.assert_allclose(mean_only.mean, full.mean, atol=1e-12)
+    assert mean_only.coefficients.shape == (12, 0) and mean_only.variances.shape == (0,)
+    out = tracking.Tracker(mean_only).track(12, ids, (R[0] @ X.mean(axis=0))[:2].T)
+    assert out.residual < 1e-6
+
+
 def test_coefficients_are_the_map_estimate_inside_the_bound_and_on_it_beyond():
     rng = np.random.default_rng(3)
     A = rng.standard_normal((400, 5))
