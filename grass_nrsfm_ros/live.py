@@ -31,10 +31,10 @@ import time
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from grass_nrsfm_ros.nrsfm.measurement import InvalidInputError
-from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
+from grass_nrsfm_ros.nrsfm.measurement import centre, InvalidInputError
+from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation, rigid_world_shape
 from grass_nrsfm_ros.nrsfm.solver import BLAS_THREADS
-from grass_nrsfm_ros.nrsfm.tracking import build_model, Tracker
+from grass_nrsfm_ros.nrsfm.tracking import build_model, fit_subset, rigid_model, Tracker
 from grass_nrsfm_ros.params import OUTPUTS
 from grass_nrsfm_ros.pipeline import (common_ids, DEPTH_FLIP, FrameResult, make_windows,
                                       window_matrix)
@@ -63,15 +63,18 @@ class Step:
 def bootstrap_model(frames):
     """A rank-0 ShapeModel from the rigid factorisation of ``frames`` (Frames of one
     sequence, oldest first, on their common tracks), or None when too few frames or the
-    depth is ill-posed (spread beyond BOOTSTRAP_DEPTH_LIMIT times the image spread)."""
+    depth is ill-posed (spread beyond BOOTSTRAP_DEPTH_LIMIT times the image spread). The
+    rotations and the depth check come from at most FIT_TRACKS of the tracks (the cost of a
+    rebuild, on the tracking thread, does not grow with them), the shape of every track from
+    those rotations."""
     ids = frames[0].ids
     for f in frames[1:]:
         ids = common_ids(ids, f.ids)
     if len(frames) < BOOTSTRAP_AT[0] or ids.size < 4:
         return None
-    W = window_matrix(frames, ids)
+    W, _ = centre(window_matrix(frames, ids))
     try:
-        R, S = rigid_factorisation(W)
+        R, S = rigid_factorisation(W[:, fit_subset(ids.size)])
     except (InvalidInputError, np.linalg.LinAlgError):     # no spread, degenerate frames
         return None
     Sf = S.reshape(len(frames), 3, -1)
@@ -80,7 +83,7 @@ def bootstrap_model(frames):
     if not np.isfinite(depth) or depth > BOOTSTRAP_DEPTH_LIMIT * image:
         return None
     stamps = np.array([f.stamp_ns for f in frames], dtype=np.int64)
-    return build_model(S, R, ids, stamps, max_modes=0)
+    return rigid_model(rigid_world_shape(R, W), R, ids, stamps)
 
 
 class LivePipeline:

@@ -5,12 +5,12 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from doubles import bending_sheet as make_sequence, RigidALS, RigidWarmStart
-from grass_nrsfm_ros.live import LivePipeline, reconstruct_live
+from grass_nrsfm_ros.live import bootstrap_model, LivePipeline, reconstruct_live
 from grass_nrsfm_ros.nrsfm import tracking
 from grass_nrsfm_ros.nrsfm.measurement import as_frames
 from grass_nrsfm_ros.nrsfm.metrics import e3d
 from grass_nrsfm_ros.nrsfm.synthetic import make_sequence as make_surface
-from grass_nrsfm_ros.pipeline import reconstruct_sequence, SlidingWindow
+from grass_nrsfm_ros.pipeline import Frame, reconstruct_sequence, SlidingWindow
 
 
 def random_rotation(rng):
@@ -72,6 +72,18 @@ def test_a_rank_zero_model_is_the_mean_shape_without_an_svd(monkeypatch):
     assert mean_only.coefficients.shape == (12, 0) and mean_only.variances.shape == (0,)
     out = tracking.Tracker(mean_only).track(12, ids, (R[0] @ X.mean(axis=0))[:2].T)
     assert out.residual < 1e-6
+
+
+def test_the_bootstrap_fits_a_track_subset_and_shapes_every_track():
+    X, R = low_rank_sequence(F=12, P=tracking.FIT_TRACKS + 1500, rank=1)
+    X = np.broadcast_to(X[0], X.shape)                        # rigid: the first shape
+    S = R @ X
+    ids = np.arange(X.shape[2], dtype=np.uint32)
+    frames = [Frame(f, '', ids, S[f, :2].T + 100.0) for f in range(12)]
+    model = bootstrap_model(frames)
+    assert model.rank == 0 and model.mean.shape == X.shape[1:]
+    shapes = (model.R @ model.mean).reshape(-1, X.shape[2])
+    assert e3d(shapes, S.reshape(-1, X.shape[2])) < 1e-6
 
 
 def test_coefficients_are_the_map_estimate_inside_the_bound_and_on_it_beyond():

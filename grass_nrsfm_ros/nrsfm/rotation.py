@@ -281,12 +281,11 @@ def _rotations_from_triple(Pi, G):
 
 # ----------------------------------------------------------------------------- rigid
 
-def _world_shape(R, Wn):
-    """Least-squares rigid world shape ``X: (3, P)`` with ``W_f ~ R_f[:2] X`` (min-norm)."""
-    cams = R[:, :2, :]
-    normal = np.einsum('fri,frj->ij', cams, cams)
-    rhs = np.einsum('fri,frp->ip', cams, as_frames(Wn, 2))
-    return np.linalg.pinv(normal, rcond=1e-8) @ rhs
+def rigid_world_shape(R, Wc):
+    """Least-squares rigid world shape ``X: (3, P)`` with ``Wc_f ~ R_f[:2] X`` (min-norm):
+    ``R: (F, 3, 3)``, ``Wc: (2F, P)`` centred per row, X in Wc's units."""
+    cams = R[:, :2, :].reshape(-1, 3)                          # (2F, 3), rows as Wc's
+    return np.linalg.pinv(cams.T @ cams, rcond=1e-8) @ (cams.T @ Wc)
 
 
 def _rigid(W):
@@ -312,7 +311,7 @@ def _rigid(W):
         depth = np.zeros((F, 1, Wn.shape[1]))
         S = from_frames(np.concatenate([as_frames(Wn, 2), depth], axis=1)) * scale
         return R, S, info
-    S = from_frames(R @ _world_shape(R, Wn)[None]) * scale
+    S = from_frames(R @ rigid_world_shape(R, Wn)[None]) * scale
     return R, S, info
 
 

@@ -97,17 +97,15 @@ class TrackedFrame:
 
 def build_model(S, R, ids, stamps, *, energy=MODE_ENERGY, max_modes=MAX_MODES):
     """ShapeModel from camera-frame shapes ``S: (3F, P)`` and rotations ``R: (F, 3, 3)`` of
-    tracks ``ids: (P,)`` over frames ``stamps: (F,)``. ``max_modes`` 0: the mean alone (no
-    modes, no SVD of the deviations)."""
+    tracks ``ids: (P,)`` over frames ``stamps: (F,)``. ``max_modes`` 0: the mean alone
+    (:func:`rigid_model`, no SVD of the deviations)."""
     F, P = R.shape[0], S.shape[1]
     S = S.reshape(F, 3, P)
     S = S - S.mean(axis=2, keepdims=True)
     X = R.transpose(0, 2, 1) @ S                              # (F, 3, P) world shapes
     mean = X.mean(axis=0)
-    if max_modes == 0:                      # the mean alone (a rigid model): no SVD
-        return ShapeModel(np.asarray(ids), mean, np.zeros((0, 3, P)),
-                          np.asarray(stamps, dtype=np.int64), np.asarray(R, dtype=np.float64),
-                          np.zeros((F, 0)), np.zeros(0))
+    if max_modes == 0:
+        return rigid_model(mean, R, ids, stamps)
     D = (X - mean).reshape(F, 3 * P)
     _, s, Vt = economy_svd(D)
     share = np.cumsum(s ** 2) / max(float(np.sum(s ** 2)), 1e-300)
@@ -118,6 +116,15 @@ def build_model(S, R, ids, stamps, *, energy=MODE_ENERGY, max_modes=MAX_MODES):
     variances = mode_variances(s, rank, F, P)
     return ShapeModel(np.asarray(ids), mean, modes, np.asarray(stamps, dtype=np.int64),
                       np.asarray(R, dtype=np.float64), coefficients, variances)
+
+
+def rigid_model(X, R, ids, stamps):
+    """The rank-0 ShapeModel of the rigid world shape ``X: (3, P)`` of tracks ``ids: (P,)``
+    seen with rotations ``R: (F, 3, 3)`` at ``stamps: (F,)``: its mean alone, no modes."""
+    X = X - X.mean(axis=1, keepdims=True)
+    return ShapeModel(np.asarray(ids), X, np.zeros((0,) + X.shape),
+                      np.asarray(stamps, dtype=np.int64), np.asarray(R, dtype=np.float64),
+                      np.zeros((R.shape[0], 0)), np.zeros(0))
 
 
 def mode_variances(s, rank, F, P):
