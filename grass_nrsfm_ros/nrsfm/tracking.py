@@ -143,11 +143,13 @@ def fit_rotation(w, X, R, steps=GN_STEPS):
     for _ in range(steps):
         Y = R @ X
         e = w - Y[:2]
-        # d(R' X)/d delta with R' = exp([delta]x) R: delta x Y; rows 0, 1 of it
-        Jx = np.stack([np.zeros_like(Y[0]), Y[2], -Y[1]], axis=1)     # (P, 3)
-        Jy = np.stack([-Y[2], np.zeros_like(Y[0]), Y[0]], axis=1)
-        H = Jx.T @ Jx + Jy.T @ Jy
-        g = Jx.T @ e[0] + Jy.T @ e[1]
+        # d(R' X)/d delta with R' = exp([delta]x) R is delta x Y: per point the Jacobian rows
+        # Jx = (0, Y2, -Y1), Jy = (-Y2, 0, Y0); J^T J and J^T e from C = Y Y^T and E = e Y^T
+        C, E = Y @ Y.T, e @ Y.T
+        H = np.array([[C[2, 2], 0.0, -C[0, 2]],
+                      [0.0, C[2, 2], -C[1, 2]],
+                      [-C[0, 2], -C[1, 2], C[0, 0] + C[1, 1]]])
+        g = np.array([-E[1, 2], E[0, 2], E[1, 0] - E[0, 1]])
         H[np.diag_indices(3)] += 1e-9 * np.trace(H) + 1e-300
         R = Rotation.from_rotvec(np.linalg.solve(H, g)).as_matrix() @ R
     return nearest_rotation(R)
