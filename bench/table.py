@@ -182,11 +182,14 @@ def load_table():
              '|---|---|---|---|---|---|---|']
     for key, r in runs:
         lat = r['latency_ms']
+        # a run whose node never accounted for every frame: its last diagnostics, and why
+        published = r.get('frames published',
+                          r.get('last_diagnostics', {}).get('frames published', '-'))
+        complete = r.get('recording_complete', f'- ({r["error"]})' if 'error' in r else None)
         lines.append(f'| {key} | {r["points"]} x {r["rate"]:g}, {r["seconds"]:g} | '
-                     f'{r["sent"]} / {r["frames published"]} | {lat["p50"]} / {lat["p95"]} / '
+                     f'{r["sent"]} / {published} | {lat["p50"]} / {lat["p95"]} / '
                      f'{lat["max"]} | {fmt(r["rss_mb"]["slope_mb_per_min"], 2)} | '
-                     f'{r.get("recording_complete")} | '
-                     f'{r.get("environment", {}).get("git", "-")} |')
+                     f'{complete} | {r.get("environment", {}).get("git", "-")} |')
     return lines
 
 
