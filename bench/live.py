@@ -68,14 +68,17 @@ def run_pipeline(W, output, mapping_tracks, warm_start=None):
     F, P = W.shape[0] // 2, W.shape[1]
     ids = np.arange(P, dtype=np.uint32)
     options = {} if warm_start is None else {'warm_start': warm_start}
+    if output == 'live':
+        options['refined_from'] = defaults()['refined_from']
     pipe = LivePipeline(SlidingWindow(default_solver_factory(), mapping_tracks=mapping_tracks,
                                       **options), output=output)
     solve, cpu = pipe.solve, []
 
     def timed(window, progress=None):
-        start = time.process_time()
+        start, before = time.process_time(), pipe.windows.previous
         out = solve(window, progress)
-        cpu.append(time.process_time() - start)
+        if pipe.windows.previous is not before:         # solved (not released from the last)
+            cpu.append(time.process_time() - start)
         return out
     pipe.solve = timed
     points, refined = reconstruct_live(pipe, np.arange(F),

@@ -12,7 +12,9 @@ and numpy: no ROS import.
   with the :class:`~grass_nrsfm_ros.pipeline.SlidingWindow` (the ADMM, context, key frames,
   warm start) and turns the solution into the next model; the tracker swaps to it at its next
   frame, carrying its rotation through the frames both models share. The window's frames come
-  back refined (``Step.refined``: each frame once, as the windows publish them).
+  back refined (``Step.refined``: each frame once, as the SlidingWindow publishes them: by
+  default from the solve that reconstructs it for the ``window_size / window_stride``-th
+  time, ``refined_from``).
 * ``output='windows'``: no tracking; ``Step.points`` are the windows' frames as they are
   solved (the sliding-window behaviour, for comparison).
 
@@ -261,16 +263,18 @@ class LivePipeline:
         (:func:`solve_window`'s; None for output 'windows'). Returns solve's Step."""
         if self.output == 'windows':
             return Step(points=tuple(results))
-        with self._lock:
-            self._waiting = (sequence, model)
-        self.stats['models'] += 1
+        if model is not None:
+            with self._lock:
+                self._waiting = (sequence, model)
+            self.stats['models'] += 1
         self.stats['refined'] += len(results)
         return Step(refined=tuple(results))
 
-    def accept_solved_elsewhere(self, sequence, stamps, results, model):
+    def accept_solved_elsewhere(self, sequence, results, model, solved=True):
         """:meth:`accept` for a window solved by another SlidingWindow (a mapping process):
-        this one's bookkeeping (SlidingWindow.note_solved) first."""
-        self.windows.note_solved(sequence, stamps)
+        this one's bookkeeping (SlidingWindow.note_solved, of the frames in ``results``;
+        ``solved`` false: a final window released without a solve) first."""
+        self.windows.note_solved(sequence, [r.stamp_ns for r in results], solved)
         return self.accept(sequence, results, model)
 
     def reset(self):
@@ -326,10 +330,11 @@ def solve_window(windows, window, output='live', published=None, progress=None):
     ``published`` (``{stamp: (ids, z)}`` published before this model, see
     :func:`disagrees_with`). Output 'windows': no model (None). BLAS on BLAS_THREADS threads."""
     with threadpool_limits(limits=BLAS_THREADS, user_api='blas'):
+        before = windows.previous
         results = windows.solve(window, progress=progress)
-        if output == 'windows':
-            return results, None
         solution = windows.previous
+        if output == 'windows' or solution is before:       # not solved again: no new model
+            return results, None
         if published and disagrees_with(solution, published):
             windows.flip_previous()
             results = [FrameResult(r.stamp_ns, r.frame_id, r.ids, r.xyz @ DEPTH_FLIP)

@@ -77,11 +77,12 @@ class WindowSpec:
     ids: object
     closed_at: float
     context_stamps: tuple
+    final: bool = False
 
     @classmethod
     def of(cls, window):
         return cls(window.sequence, window.index, window.stamps, window.frame_ids, window.ids,
-                   window.closed_at, tuple(f.stamp_ns for f in window.context))
+                   window.closed_at, tuple(f.stamp_ns for f in window.context), window.final)
 
     @property
     def n_frames(self):
@@ -110,7 +111,7 @@ class FrameStore:
         context = tuple(self.frames[(spec.sequence, s)] for s in spec.context_stamps
                         if (spec.sequence, s) in self.frames)
         return Window(spec.sequence, spec.index, spec.stamps, spec.frame_ids, spec.ids,
-                      window_matrix(frames, spec.ids), spec.closed_at, context)
+                      window_matrix(frames, spec.ids), spec.closed_at, context, spec.final)
 
     def prune(self, spec):
         """Drop the frames no window after ``spec`` can name."""
@@ -198,7 +199,7 @@ class _Child:
             self.send(self._solve(spec, window, published))
 
     def _solve(self, spec, window, published):
-        started = time.monotonic()
+        started, solved = time.monotonic(), self.windows.stats['solved']
         try:
             results, model = solve_window(self.windows, window, self.output, published,
                                           progress=self._cancel_if_stopping)
@@ -213,7 +214,8 @@ class _Child:
             with self.cond:
                 self.modelled.add(spec.sequence)
                 self.depths = {k: z for k, z in self.depths.items() if k[0] != spec.sequence}
-        figures = solve_figures(self.windows.previous, time.monotonic() - started)
+        figures = solve_figures(self.windows.previous, time.monotonic() - started) \
+            if self.windows.stats['solved'] > solved else None      # None: released, not solved
         return ('solved', spec, tuple(results), model, figures)
 
     def _cancel_if_stopping(self, iteration, report):

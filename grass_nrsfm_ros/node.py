@@ -145,6 +145,7 @@ class ReconstructionNode(Node):
         self.pipeline = make_pipeline(config, solver_factory, warm_start_class=warm_start_class)
         self._frame_id = config['frame_id']
         self._inline = config['mapping'] == 'inline'
+        self._flush_after, self._last_frame_at = config['flush_after'], None
         self._handovers = deque(maxlen=LATENCY_WINDOW)    # seconds to hand a frame over
         self.mapper = None
         if config['mapping'] == 'process':
@@ -345,6 +346,7 @@ class ReconstructionNode(Node):
     def _on_housekeeping(self):
         """Once a second: adapt the input QoS, take the rates' snapshot, publish diagnostics."""
         self._adapt_input_qos()
+        self._flush_if_idle()
         self._rate_cache = self._rate_statuses()
         self._publish_diagnostics()
 
@@ -398,6 +400,7 @@ class ReconstructionNode(Node):
             step = self.pipeline.add_frame(stamp, tracks.ids, tracks.uv, msg.header.frame_id)
         except FrameError as exc:
             return self._drop(stamp, f'frame refused: {exc}')
+        self._last_frame_at = time.monotonic()
         if self.pipeline.windows.stats['resets'] != resets:
             self._log.info(f'all track ids changed at {stamp} ns: started a new sequence')
         for result in step.points:
@@ -406,8 +409,14 @@ class ReconstructionNode(Node):
             self._latencies.append(time.monotonic() - received)
         if self.mapper is not None:
             return self._hand_over(step, stamp)
-        for window in step.windows:
-            if self._inline:
+        self._map(step.windows)
+
+    def _map(self, windows):
+        """Hand closed ``windows`` to the mapping (process, worker or inline)."""
+        for window in windows:
+            if self.mapper is not None:
+                self.mapper.submit(window)
+            elif self._inline:
                 self._solve_and_publish(window)     # reproducible: as the offline tools
             else:
                 self._submit(window)
@@ -418,9 +427,17 @@ class ReconstructionNode(Node):
         started = time.perf_counter()
         self.mapper.add_frame(self.pipeline.windows.sequence, self.pipeline.windows.newest,
                               self._published_depth(stamp))
-        for window in step.windows:
-            self.mapper.submit(window)
+        self._map(step.windows)
         self._handovers.append(time.perf_counter() - started)
+
+    def _flush_if_idle(self):
+        """Once the input has been quiet ``flush_after`` seconds (once per quiet spell): the
+        last window of the buffered frames to the mapping (LivePipeline.flush)."""
+        if not self._flush_after or self._last_frame_at is None \
+                or time.monotonic() - self._last_frame_at < self._flush_after:
+            return
+        self._last_frame_at = None
+        self._map(self.pipeline.flush())
 
     def _published_depth(self, stamp):
         kept = self.pipeline.published_depth(stamp) if self.pipeline.output == 'live' else None
@@ -483,7 +500,8 @@ class ReconstructionNode(Node):
             return self.get_logger().error(
                 f'window {spec.index} failed in the mapping process: {message[3]}')
         _, spec, results, model, figures = message
-        step = self.pipeline.accept_solved_elsewhere(spec.sequence, spec.stamps, results, model)
+        step = self.pipeline.accept_solved_elsewhere(spec.sequence, results, model,
+                                                     solved=figures is not None)
         self._publish_solved(step, spec, figures)
 
     def _on_mapping_exit(self, exitcode, restarted):
@@ -502,7 +520,7 @@ class ReconstructionNode(Node):
             raise SolveCancelled(f'stopping at iteration {iteration}')
 
     def _solve_and_publish(self, window):
-        started = time.monotonic()
+        started, solved = time.monotonic(), self.pipeline.windows.stats['solved']
         try:
             results = self.pipeline.solve(window, progress=self._cancel_if_stopping)
         except SolveCancelled:
@@ -514,16 +532,19 @@ class ReconstructionNode(Node):
             self._counts['solve_errors'] += 1
             return self.get_logger().error(f'window {window.index} failed: '
                                            f'{type(exc).__name__}: {exc}')
-        self._publish_solved(results, window,
-                             solve_figures(self.pipeline.previous, time.monotonic() - started))
+        figures = solve_figures(self.pipeline.previous, time.monotonic() - started) \
+            if self.pipeline.windows.stats['solved'] > solved else None
+        self._publish_solved(results, window, figures)
 
     def _publish_solved(self, step, window, figures):
-        """Publish a solved window's Step (``points`` / ``refined``) and note its figures."""
+        """Publish a solved window's Step (``points`` / ``refined``) and note its figures
+        (None: a final window released without a solve)."""
         self._publish_paced(self.points_pub, step.points)
         self._publish_paced(self.refined_pub, step.refined)
-        self._last_solve = dict(figures, latency_seconds=time.monotonic() - window.closed_at,
-                                tracks_in_window=window.ids.size,
-                                frames_in_window=window.n_frames)
+        if figures is not None:
+            self._last_solve = dict(figures, latency_seconds=time.monotonic() - window.closed_at,
+                                    tracks_in_window=window.ids.size,
+                                    frames_in_window=window.n_frames)
         if not self._stopping.is_set():
             self._publish_diagnostics()
 

@@ -33,6 +33,8 @@ WARM_ROTATIONS = ('refine', 'fit', 'solver')
 #: values of ``output`` and ``mapping``
 OUTPUTS = ('live', 'windows')
 MAPPINGS = ('process', 'worker', 'inline')
+#: values of ``refined_from``
+REFINED_FROM = ('last_window', 'first_window')
 #: values of ``input_reliability``
 INPUT_RELIABILITIES = ('auto', 'best_effort', 'reliable')
 #: the fewest frames a window can have
@@ -77,6 +79,20 @@ NODE_PARAMS = (
           "shape model and published on points at once; each solved window's frames follow on "
           "points/refined. 'windows': frames are published on points only when their window is "
           'solved (the sliding-window behaviour).', choices=OUTPUTS),
+    Param('refined_from', 'last_window', str,
+          "Which solve's shapes of a frame go out on points/refined (output 'live'). "
+          "'last_window': the solve that reconstructs the frame for the ceil(window_size / "
+          'window_stride)-th time, as one of its own frames or as context (after the first '
+          'window: the last window that has it among its own frames, with the most frames '
+          'after it), window_size - window_stride frames later than the first; the last window '
+          "of a sequence publishes the rest. 'first_window': the first window that solves it. "
+          "With output 'windows' each frame goes out on points from its first window (the "
+          'sliding-window behaviour).', choices=REFINED_FROM),
+    Param('flush_after', 1.0, float,
+          'Seconds without an accepted tracks frame (checked once a second) after which the '
+          'buffered frames are solved as the last window of the sequence: every frame not yet '
+          "on points/refined (output 'windows': on points) goes out, as at the end of a bag. A "
+          'later frame continues the sequence. 0: never.', range=(0.0, 1e6)),
     Param('mapping', 'process', str,
           "Where windows are solved: 'process' (a child process beside the tracking, at a "
           'lower CPU priority: every frame is published at once, refined when its window is '
@@ -121,9 +137,9 @@ NODE_PARAMS = (
           'Fraction by which a measured rate may miss expected_rate before a WARN.',
           range=(0.0, 1.0)),
     Param('publish_mesh', False, bool,
-          'Also publish a visualization_msgs/Marker TRIANGLE_LIST on mesh: the newest frame of '
-          "each solved window, triangulated (Delaunay) on the track set's first frame in the "
-          'image plane and coloured by depth.'),
+          'Also publish a visualization_msgs/Marker TRIANGLE_LIST on mesh: the newest frame '
+          "each solved window publishes, triangulated (Delaunay) on the track set's first "
+          'frame in the image plane and coloured by depth.'),
     Param('mesh_max_edge', 3.0, float,
           'Triangles whose longest edge (in the image) exceeds this many times the median edge '
           'are left out of the mesh (gaps, convex hull).', range=(1.0, 1e6)),

@@ -6,7 +6,12 @@ ids, ``uv: (P, 2)`` pixels); every ``window_stride`` frames (the first time afte
 ``window_size`` frames) a :class:`Window` comes out, holding ``W: (2F, P)`` for the tracks seen
 in *all* of its frames. ``solve(window)`` reconstructs it and returns the
 :class:`FrameResult` of each frame not published before: the first window's frames, then the
-``stride`` new frames of each later window, so every frame is published exactly once.
+``stride`` new frames of each later window, so every frame is published exactly once
+(``refined_from='first_window'``, the sliding-window behaviour). With ``'last_window'`` a
+frame is published by the solve that reconstructs it for the ``ceil(window_size /
+window_stride)``-th time (as one of a window's own frames or as context): for a frame after
+the first window, the last window that has it among its own frames, with the most frames after
+it; the last window of a sequence (:meth:`SlidingWindow.flush`) publishes the rest.
 
 Policies (the node reports each as it happens):
 
@@ -130,7 +135,8 @@ class Window:
     frames ``stamps: (F,)`` (ascending); ``closed_at``: ``time.monotonic()`` when it closed;
     ``context``: the earlier Frames of its sequence solved with it but not published by it
     (oldest first: up to ``key_frames`` spread evenly over the older past, then the newest
-    ``context_frames``)."""
+    ``context_frames``); ``final``: the last window of its sequence
+    (:meth:`SlidingWindow.flush`)."""
 
     sequence: int
     index: int
@@ -140,6 +146,7 @@ class Window:
     W: np.ndarray
     closed_at: float
     context: tuple = ()
+    final: bool = False
 
     @property
     def n_frames(self):
@@ -160,13 +167,14 @@ class FrameResult:
 @dataclass(frozen=True)
 class Problem:
     """What one solve reconstructs: ``W: (2F, P)`` of tracks ``ids: (P,)`` over ``stamps: (F,)``
-    = ``n_context`` context frames then the window's frames."""
+    = ``n_context`` context frames then the window's frames (``frame_ids: (F,)``)."""
 
     sequence: int
     stamps: np.ndarray
     ids: np.ndarray
     W: np.ndarray
     n_context: int
+    frame_ids: tuple = ()
 
 
 @dataclass
@@ -207,6 +215,8 @@ def make_windows(config, solver_factory=None, **options):
     their defaults). ``solver_factory`` replaces ``GrassmannNRSfM(**solver parameters)``;
     ``options`` (e.g. ``warm_start_class``) go to SlidingWindow as they are."""
     factory = solver_factory or default_solver_factory(**params.solver_kwargs(config))
+    if config.get('output', 'live') == 'live':
+        options = {'refined_from': config.get('refined_from', 'last_window'), **options}
     return SlidingWindow(factory, metres_per_pixel=config.get('metres_per_pixel', 1.0),
                          **params.window_kwargs(config), **options)
 
@@ -222,11 +232,15 @@ class SlidingWindow:
     def __init__(self, solver_factory=None, *, window_size=30, window_stride=10, min_tracks=10,
                  warm_start='resume', align_windows=True, metres_per_pixel=1.0,
                  context_frames=60, warm_rotations='solver', warm_start_class=None,
-                 key_frames=30, mapping_tracks=0):
+                 key_frames=30, mapping_tracks=0, refined_from='first_window'):
         params.check_window(window_size=window_size, window_stride=window_stride,
                             context_frames=context_frames, key_frames=key_frames,
                             warm_start=warm_start, warm_rotations=warm_rotations,
-                            mapping_tracks=mapping_tracks)
+                            mapping_tracks=mapping_tracks, refined_from=refined_from)
+        self.refined_from = refined_from
+        #: a frame is published by the solve that reconstructs it for this many'th time
+        self.publish_after = 1 if refined_from == 'first_window' else \
+            -(-int(window_size) // int(window_stride))
         self.solver_factory = solver_factory or default_solver_factory()
         self.context_frames, self.warm_rotations = int(context_frames), warm_rotations
         self.key_frames = int(key_frames) if self.context_frames else 0
@@ -247,6 +261,9 @@ class SlidingWindow:
         self._sequence = 0
         self._window_index = 0
         self._emitted_until = None      # newest stamp of the last emitted window
+        #: 'last_window': (sequence, {stamp: (FrameResult of its latest solve, solves)}) of
+        #: the frames solved but not published yet
+        self._latest = (None, {})
         self._unpublished = deque(maxlen=1_000_000)   # (sequence, stamp) emitted, not published
         self._published_until = {}      # sequence -> newest published stamp
         self._previous = None           # Solution of the last solved window
@@ -293,17 +310,21 @@ class SlidingWindow:
         self._window_wanted = True
 
     def flush(self):
-        """The last window over the newest buffered frames if any of them was never in a window
-        (end of a sequence or of a bag); ``[]`` otherwise."""
+        """The last window of the sequence (end of a sequence or of a bag; it publishes every
+        frame it can): over the newest buffered frames if any of them was never in a window,
+        or (``refined_from='last_window'``) while frames of emitted windows wait unpublished;
+        ``[]`` otherwise."""
         frames = self._frames[-self.window_size:]
         fresh = [f for f in frames if self._emitted_until is None
                  or f.stamp_ns > self._emitted_until]
-        if not fresh or len(frames) < MIN_WINDOW_FRAMES:
+        waiting = self.publish_after > 1 and bool(self._unpublished) \
+            and self._unpublished[-1][0] == self._sequence
+        if not (fresh or waiting) or len(frames) < MIN_WINDOW_FRAMES:
             self._count('frames_lost', len(fresh))
             if fresh:                           # given up: not pending, not lost twice
                 self._emitted_until = fresh[-1].stamp_ns
             return []
-        return [self._emit(frames)]
+        return [self._emit(frames, final=True)]
 
     @property
     def sequence(self):
@@ -368,7 +389,7 @@ class SlidingWindow:
     def _shared(a, b):
         return int(common_ids(a.ids, b.ids).size)
 
-    def _emit(self, frames):
+    def _emit(self, frames, final=False):
         common = frames[0].ids
         for f in frames[1:]:
             common = common_ids(common, f.ids)
@@ -383,7 +404,7 @@ class SlidingWindow:
             if self.context_frames else ()
         window = Window(self._sequence, self._window_index, stamps,
                         tuple(f.frame_id for f in frames), common, W, time.monotonic(),
-                        context)
+                        context, final)
         self._window_index += 1
         self._count('windows')
         return window
@@ -399,6 +420,8 @@ class SlidingWindow:
             return self._solve(window, progress)
 
     def _solve(self, window, progress):
+        if self._solved_before(window):
+            return self._release(window)
         if window.ids.size < self.min_tracks:
             self._count('failed')
             raise WindowError(f'window {window.index}: its {window.n_frames} frames share '
@@ -440,8 +463,19 @@ class SlidingWindow:
         self._previous = Solution(window.sequence, problem.stamps, problem.ids, uv, S, R,
                                   groups, report, residual, self._rank_of(report, init))
         self._count('solved')
-        c = problem.n_context
-        return self._publish(window, problem.ids, as_frames(Wc, 2)[c:], Z[c:])
+        return self._publish(window, problem, as_frames(Wc, 2), Z)
+
+    def _solved_before(self, window):
+        """True for the last window of a sequence whose frames the last solution holds
+        (:meth:`flush` with no new frame): not solved again."""
+        p = self._previous
+        return (window.final and p is not None and p.sequence == window.sequence
+                and np.isin(window.stamps, p.stamps).all())
+
+    def _release(self, window):
+        """The final ``window``'s FrameResults without a solve: every frame solved but not
+        published yet, from its latest solve."""
+        return self._publish_latest(window, None, None, None)
 
     def _rank_of(self, report, init):
         """Dai's rank of a solve's rotations: the solver's, 1 for rigid ones, the resumed
@@ -454,10 +488,14 @@ class SlidingWindow:
         return self._resumed_rank if method == 'given' and init is not None else None
 
     def flip_previous(self):
-        """Mirror the depth of the last solution (``S``'s z rows, ``R`` -> ``D R D``), so the
-        next window aligns to the flipped orientation."""
+        """Mirror the depth of the last solution (``S``'s z rows, ``R`` -> ``D R D``) and of the
+        frames waiting to be published from earlier solves, so the next window aligns to the
+        flipped orientation."""
         p = self._previous
         p.S, p.R = flip_depth(p.S), DEPTH_FLIP @ p.R @ DEPTH_FLIP
+        latest = self._latest[1]
+        for stamp, (r, solves) in latest.items():      # solved in the same orientation
+            latest[stamp] = (replace(r, xyz=r.xyz @ DEPTH_FLIP), solves)
 
     def _mapped_tracks(self, ids):
         """Indices ``(mapping_tracks,)`` (sorted) of the tracks ``ids: (P,)`` the solver sees,
@@ -488,13 +526,16 @@ class SlidingWindow:
             cols = np.searchsorted(window.ids, ids)
             W_window = window.W[:, cols]
         W = np.vstack([window_matrix(context, ids), W_window]) if context else W_window
-        return Problem(window.sequence, stamps, ids, W, len(context))
+        frame_ids = tuple(f.frame_id for f in context) + tuple(window.frame_ids)
+        return Problem(window.sequence, stamps, ids, W, len(context), frame_ids)
 
-    def note_solved(self, sequence, stamps):
-        """Bookkeep a window of ``sequence`` over ``stamps: (F,)`` solved elsewhere (a mapping
-        process with its own SlidingWindow): counted solved, its frames not published before
-        counted published (and those it passed over lost), as :meth:`solve` does."""
-        self._count('solved')
+    def note_solved(self, sequence, stamps, solved=True):
+        """Bookkeep a window of ``sequence`` solved elsewhere (a mapping process with its own
+        SlidingWindow) that published the frames ``stamps: (F,)``: counted solved (unless
+        ``solved`` is false: a final window released without a solve), those frames counted
+        published (and those it passed over lost), as :meth:`solve` does."""
+        if solved:
+            self._count('solved')
         self._count('published', len(self._fresh(sequence, stamps)))
 
     def note_failed(self):
@@ -516,20 +557,51 @@ class SlidingWindow:
                 self._count('frames_lost')
         return fresh
 
-    def _publish(self, window, ids, XY, Z):
-        fresh = self._fresh(window.sequence, window.stamps)
-        if not fresh:
-            return []
-        scale = self.metres_per_pixel
-        out = []
-        for i in fresh:
-            xyz = np.empty((ids.size, 3))
-            xyz[:, :2] = XY[i].T
-            xyz[:, 2] = Z[i]
-            out.append(FrameResult(int(window.stamps[i]), window.frame_ids[i], ids,
-                                   xyz * scale))
+    def _publish(self, window, problem, XY, Z):
+        """FrameResults to publish of a solved ``problem`` (``XY: (F, 2, P)`` centred pixels,
+        ``Z: (F, P)`` centred depth): its window's frames not published before
+        ('first_window'), or those :meth:`_publish_latest` releases ('last_window')."""
+        if self.publish_after > 1:
+            return self._publish_latest(window, problem, XY, Z)
+        c = problem.n_context
+        fresh = [c + i for i in self._fresh(window.sequence, problem.stamps[c:])]
+        out = [self._result(problem, i, XY, Z) for i in fresh]
         self._count('published', len(out))
         return out
+
+    def _publish_latest(self, window, problem, XY, Z):
+        """'last_window': note this solve's shapes of every unpublished frame of ``problem``
+        (None: no solve) as the frame's latest, then publish, in stamp order and each from
+        its latest solve, the unpublished frames up to the newest that is due: solved
+        ``publish_after`` times, or not reconstructed by this solve (it left the solves:
+        dropped context, a skipped window), or any (``window.final``)."""
+        done = self._published_until.get(window.sequence)
+        if self._latest[0] != window.sequence:
+            self._latest = (window.sequence, {})
+        latest = self._latest[1]
+        solved = set()
+        stamps = () if problem is None else problem.stamps
+        for i, stamp in enumerate(int(s) for s in stamps):      # frames, not points
+            if done is None or stamp > done:
+                solves = latest[stamp][1] + 1 if stamp in latest else 1
+                latest[stamp] = (self._result(problem, i, XY, Z), solves)
+                solved.add(stamp)
+        due = [s for s, (_, n) in latest.items()
+               if window.final or n >= self.publish_after or s not in solved]
+        if not due:
+            return []
+        order = sorted(s for s in latest if s <= max(due))
+        out = [latest.pop(order[i])[0] for i in self._fresh(window.sequence, order)]
+        self._count('published', len(out))
+        return out
+
+    def _result(self, problem, i, XY, Z):
+        """The FrameResult of ``problem``'s frame ``i``."""
+        xyz = np.empty((problem.ids.size, 3))
+        xyz[:, :2] = XY[i].T
+        xyz[:, 2] = Z[i]
+        return FrameResult(int(problem.stamps[i]), problem.frame_ids[i], problem.ids,
+                           xyz * self.metres_per_pixel)
 
     def _overlap(self, problem):
         """Indices ``(frames_new, frames_old, tracks_new, tracks_old)`` shared with the previous

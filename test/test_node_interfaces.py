@@ -81,7 +81,10 @@ def test_qos_overrides_pin_the_input_reliability(ros_env, tmp_path):
 
 def test_reset_drops_buffer_and_model_and_starts_a_new_sequence(ros_env, tmp_path):
     log = tmp_path / 'node.log'
-    with node_with_feeder(ros_env, log, points_depth=30) as (proc, feeder):
+    # each frame refined by its first window, no flush when the input pauses: what a reset
+    # drops is the 5 frames buffered
+    args = ['-p', 'refined_from:=first_window', '-p', 'flush_after:=0.0']
+    with node_with_feeder(ros_env, log, args, points_depth=30) as (proc, feeder):
         client = feeder.node.create_client(Trigger, f'{feeder.node.get_namespace()}/'
                                            'grass_nrsfm/reset')
         assert client.wait_for_service(timeout_sec=10)
