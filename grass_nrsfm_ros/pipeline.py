@@ -29,7 +29,8 @@ Policies (the node reports each as it happens):
   no warm start crosses the boundary.
 * **Skipping.** A caller that cannot keep up may drop windows and solve only the newest: the
   next solved window publishes every unpublished frame it covers; frames that fell out of all
-  solved windows are counted in ``stats['frames_lost']``.
+  solved windows are counted in ``stats['frames_lost']`` (with ``'last_window'``, a frame
+  solved once goes out from its latest solve instead).
 
 Context: each window is solved together with up to ``context_frames`` (60) earlier frames and
 ``key_frames`` (30) older ones spread evenly over the sequence (KeyFrames); a window alone (the
