@@ -75,9 +75,9 @@ def run_pipeline(W, output, mapping_tracks, warm_start=None):
     solve, cpu = pipe.solve, []
 
     def timed(window, progress=None):
-        start, before = time.process_time(), pipe.windows.previous
+        start, released = time.process_time(), pipe.windows.releases(window)
         out = solve(window, progress)
-        if pipe.windows.previous is not before:         # solved (not released from the last)
+        if not released:
             cpu.append(time.process_time() - start)
         return out
     pipe.solve = timed

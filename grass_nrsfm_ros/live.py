@@ -330,11 +330,11 @@ def solve_window(windows, window, output='live', published=None, progress=None):
     ``published`` (``{stamp: (ids, z)}`` published before this model, see
     :func:`disagrees_with`). Output 'windows': no model (None). BLAS on BLAS_THREADS threads."""
     with threadpool_limits(limits=BLAS_THREADS, user_api='blas'):
-        before = windows.previous
+        released = windows.releases(window)                 # not solved again: no new model
         results = windows.solve(window, progress=progress)
-        solution = windows.previous
-        if output == 'windows' or solution is before:       # not solved again: no new model
+        if output == 'windows' or released:
             return results, None
+        solution = windows.previous
         if published and disagrees_with(solution, published):
             windows.flip_previous()
             results = [FrameResult(r.stamp_ns, r.frame_id, r.ids, r.xyz @ DEPTH_FLIP)

@@ -199,7 +199,7 @@ class _Child:
             self.send(self._solve(spec, window, published))
 
     def _solve(self, spec, window, published):
-        started, solved = time.monotonic(), self.windows.stats['solved']
+        started, released = time.monotonic(), self.windows.releases(window)
         try:
             results, model = solve_window(self.windows, window, self.output, published,
                                           progress=self._cancel_if_stopping)
@@ -214,8 +214,8 @@ class _Child:
             with self.cond:
                 self.modelled.add(spec.sequence)
                 self.depths = {k: z for k, z in self.depths.items() if k[0] != spec.sequence}
-        figures = solve_figures(self.windows.previous, time.monotonic() - started) \
-            if self.windows.stats['solved'] > solved else None      # None: released, not solved
+        figures = None if released else solve_figures(self.windows.previous,
+                                                      time.monotonic() - started)
         return ('solved', spec, tuple(results), model, figures)
 
     def _cancel_if_stopping(self, iteration, report):

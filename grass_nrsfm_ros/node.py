@@ -520,7 +520,7 @@ class ReconstructionNode(Node):
             raise SolveCancelled(f'stopping at iteration {iteration}')
 
     def _solve_and_publish(self, window):
-        started, solved = time.monotonic(), self.pipeline.windows.stats['solved']
+        started, released = time.monotonic(), self.pipeline.windows.releases(window)
         try:
             results = self.pipeline.solve(window, progress=self._cancel_if_stopping)
         except SolveCancelled:
@@ -532,8 +532,8 @@ class ReconstructionNode(Node):
             self._counts['solve_errors'] += 1
             return self.get_logger().error(f'window {window.index} failed: '
                                            f'{type(exc).__name__}: {exc}')
-        figures = solve_figures(self.pipeline.previous, time.monotonic() - started) \
-            if self.pipeline.windows.stats['solved'] > solved else None
+        figures = None if released else solve_figures(self.pipeline.previous,
+                                                      time.monotonic() - started)
         self._publish_solved(results, window, figures)
 
     def _publish_solved(self, step, window, figures):

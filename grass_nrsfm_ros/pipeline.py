@@ -60,6 +60,7 @@ from bisect import bisect_left
 from collections import deque
 from dataclasses import dataclass, replace
 import inspect
+import math
 import threading
 import time
 
@@ -241,7 +242,7 @@ class SlidingWindow:
         self.refined_from = refined_from
         #: a frame is published by the solve that reconstructs it for this many'th time
         self.publish_after = 1 if refined_from == 'first_window' else \
-            -(-int(window_size) // int(window_stride))
+            math.ceil(int(window_size) / int(window_stride))
         self.solver_factory = solver_factory or default_solver_factory()
         self.context_frames, self.warm_rotations = int(context_frames), warm_rotations
         self.key_frames = int(key_frames) if self.context_frames else 0
@@ -421,7 +422,7 @@ class SlidingWindow:
             return self._solve(window, progress)
 
     def _solve(self, window, progress):
-        if self._solved_before(window):
+        if self.releases(window):
             return self._release(window)
         if window.ids.size < self.min_tracks:
             self._count('failed')
@@ -466,9 +467,10 @@ class SlidingWindow:
         self._count('solved')
         return self._publish(window, problem, as_frames(Wc, 2), Z)
 
-    def _solved_before(self, window):
-        """True for the last window of a sequence whose frames the last solution holds
-        (:meth:`flush` with no new frame): not solved again."""
+    def releases(self, window):
+        """True if :meth:`solve` will not solve ``window`` again but release its frames: the
+        last window of a sequence whose frames the last solution holds (:meth:`flush` with no
+        new frame)."""
         p = self._previous
         return (window.final and p is not None and p.sequence == window.sequence
                 and np.isin(window.stamps, p.stamps).all())
