@@ -161,3 +161,20 @@ def test_resumed_solves_take_the_smoothness_prior_on_sparse_tracks(points, smoot
     solver.fit(seq.W, init=replace(warm, resumed=True))
     cold, given, resumed = (states[i].smoother is not None for i in (0, 1, -1))
     assert cold and not given and resumed == smoothed
+
+
+def test_temporal_bases_are_those_of_the_projected_sharp_shapes():
+    """The temporal bases kept after an iteration (reused, not re-decomposed) are the block
+    bases of S#'s Gram after zeta_t: the same subspaces and singular values."""
+    problem, R, _ = admm_problem(F=24, P=300)
+    settings = admm_settings(dict(solver_defaults(), K_t=3), 24, 300, None, 'plain',
+                             spatial=False)
+    state = fresh_state(problem, R, settings)
+    admm.run(state, iterations=8)
+    assert state.K_t > 1 and any(v.shape[1] < e - b for (v, _), b, e in
+                                 zip(state.t_bases, state.t_edges[:-1], state.t_edges[1:]))
+    sharp = state.Ssh.reshape(state.F, -1).astype(np.float64)
+    expected = admm.gm.block_bases(sharp @ sharp.T, state.t_edges, state.N_t)
+    for (v, sv), (v_ref, sv_ref) in zip(state.t_bases, expected):
+        np.testing.assert_allclose(sv, sv_ref, rtol=1e-4)
+        np.testing.assert_allclose(v @ v.T, v_ref @ v_ref.T, atol=1e-4)

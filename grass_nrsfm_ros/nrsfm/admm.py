@@ -417,7 +417,9 @@ class AdmmState:
     # the S# step: SVT through the smaller Gram, zeta_t ------------------------------------------
     def _temporal(self, G1, beta, it):
         """Temporal branch on the Gram ``G1: (F, F)`` of the thresholded S#: returns the
-        block-diagonal zeta_t operator ``B: (F, F)`` (C_t, xi_t, J_t updated)."""
+        block-diagonal zeta_t operator ``B: (F, F)`` and the blocks' bases (C_t, xi_t, J_t
+        updated). Block k of ``B G1 B^T`` is ``V_k V_k^T G1_kk V_k V_k^T``, whose top
+        eigenpairs are ``V_k``'s own: the bases of the projected S# too (no second eigh)."""
         s, F = self.s, self.F
         self.C_t = gm.c_update(self.Omega_t, self.J_t, self.Y3, s.lambda2, beta)
         bases = gm.block_bases(G1, self.t_edges, self.N_t)
@@ -435,7 +437,7 @@ class AdmmState:
                 B[r, r] -= np.eye(r.stop - r.start) - v @ v.T
         self.J_t, self.nuc_jt = gm.singular_value_threshold(self.C_t + self.Y3 / beta,
                                                             s.lambda4 / beta)
-        return B
+        return B, bases
 
     def _shrink(self, G, beta):
         """Eigenvectors of a Gram matrix and the SVT factors ``max(s - w/beta, 0) / s``, w the
@@ -469,10 +471,9 @@ class AdmmState:
             G1 = M @ G @ M
         op = M
         if self.s.temporal:
-            B = self._temporal(G1, beta, it)
+            B, self.t_bases = self._temporal(G1, beta, it)
             op = B @ M
             G1 = B @ G1 @ B.T
-            self.t_bases = gm.block_bases(G1, self.t_edges, self.N_t)
         penalised = H @ G1 @ H if self.centred else G1
         return op, G1, self._nuclear(penalised)
 
@@ -483,9 +484,9 @@ class AdmmState:
         Z = (X - mean) @ ((vecs * shrink) @ vecs.T) + mean          # = M X
         G1 = Z @ Z.T
         if self.s.temporal:
-            Z = self._temporal(G1, beta, it) @ Z
+            B, self.t_bases = self._temporal(G1, beta, it)
+            Z = B @ Z
             G1 = Z @ Z.T
-            self.t_bases = gm.block_bases(G1, self.t_edges, self.N_t)
         penalised = Z - Z.mean(axis=0, keepdims=True) if self.centred else Z
         return Z, G1, self._nuclear(penalised.T @ penalised)
 
