@@ -29,12 +29,12 @@ class ProbedState(AdmmState):
         self.zeta_s_norm += float(np.sum(before ** 2))
 
     def _temporal(self, G1, beta, it):
-        B = super()._temporal(G1, beta, it)
+        B, bases = super()._temporal(G1, beta, it)
         D = B - np.eye(self.F)
         self.zeta_t_share = float(np.trace(D @ G1 @ D.T) / max(np.trace(G1), 1e-300))
         sv = np.sqrt(np.maximum(np.linalg.eigvalsh(G1), 0.0))
         self.sharp_rank = int((sv > 1e-6 * sv.max()).sum())
-        return B
+        return B, bases
 
     def iterate(self, timer):
         self.zeta_s_moved = self.zeta_s_norm = 0.0
