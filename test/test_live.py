@@ -145,6 +145,27 @@ def test_new_tracks_take_their_neighbours_depth_and_gone_tracks_are_absent():
     assert z[290:].min() >= z[:290].min() - 1e-9 and z[290:].max() <= z[:290].max() + 1e-9
 
 
+def test_the_fit_model_kept_across_frames_follows_the_tracks_present():
+    """The tracker keeps the model's centred fit columns while frames repeat their tracks;
+    a frame with other tracks, and a model swap, must not reuse them: each frame equals what
+    a tracker without the kept columns gives (the same state, recomputed)."""
+    X, R = low_rank_sequence(F=40, P=300, rank=2)
+    S = R @ X
+    ids = np.arange(300, dtype=np.uint32)
+    models = [tracking.build_model(S[a:a + 20].reshape(60, 300), R[a:a + 20], ids,
+                                   np.arange(a, a + 20)) for a in (0, 5)]
+    kept, fresh = tracking.Tracker(models[0]), tracking.Tracker(models[0])
+    subsets = [ids, ids, ids[50:], ids[50:], ids[::2], ids, ids]
+    for f, present in zip(range(20, 27), subsets):
+        if f == 26:                              # the same tracks as the frame before
+            kept.swap(models[1])
+            fresh.swap(models[1])
+        fresh._fit_cache = None
+        a = kept.track(f, present, S[f, :2][:, present].T)
+        b = fresh.track(f, present, S[f, :2][:, present].T)
+        assert np.array_equal(a.xyz, b.xyz) and np.array_equal(a.R, b.R)
+
+
 def exact_tracker(F):
     """``(S: (F, 3, P), R: (F, 3, 3), ids, tracker)``: a rank-1 sequence and an exact tracker
     (no prior) on the model of its frames 0-19."""

@@ -170,11 +170,11 @@ def fit_frame(w, mean, modes, R, c, prior=0.0, alternations=ALTERNATIONS, varian
     for _ in range(alternations):
         R = fit_rotation(w, X, R)
         if modes.shape[0]:
-            A = np.einsum('ij,kjp->ipk', R[:2], modes).reshape(-1, modes.shape[0])  # (2P, r)
+            At = np.matmul(R[:2], modes).reshape(modes.shape[0], -1)   # A^T: (r, 2P)
             b = (w - R[:2] @ mean).ravel()
-            G = A.T @ A
+            G = At @ At.T
             lam = prior * np.trace(G) / max(G.shape[0], 1)
-            c = map_coefficients(G, A.T @ b, scale, sigma2, lam, c_prior, bound)
+            c = map_coefficients(G, At @ b, scale, sigma2, lam, c_prior, bound)
             X = mean + np.tensordot(c, modes, axes=1)
     return R, c, X
 
@@ -221,6 +221,7 @@ class Tracker:
         self.R = model.R[-1].copy()
         self.c = model.coefficients[-1].copy() if model.rank else np.zeros(0)
         self.history = {}               # stamp -> R of tracked frames (model's world frame)
+        self._fit_cache = None          # (model columns, their centred mean and modes)
         self.age = 0                    # frames tracked since the model's newest frame
 
     def swap(self, model):
@@ -242,6 +243,17 @@ class Tracker:
         self.model = model
         self.c = model.coefficients[-1].copy() if model.rank else np.zeros(0)
         self.history = {}
+        self._fit_cache = None
+
+    def _fit_model(self, cols):
+        """``(mean: (3, n), modes: (r, 3, n))`` of the model on its columns ``cols: (n,)``
+        that a frame is fitted on, centred over them; kept while the frames' columns repeat
+        (the usual case: the copy and centring are not redone per frame)."""
+        if self._fit_cache is None or not np.array_equal(self._fit_cache[0], cols):
+            mean, modes = self.model.mean[:, cols], self.model.modes[:, :, cols]
+            self._fit_cache = (cols, mean - mean.mean(axis=1, keepdims=True),
+                               modes - modes.mean(axis=2, keepdims=True))
+        return self._fit_cache[1:]
 
     def track(self, stamp_ns, ids, uv):
         """TrackedFrame of one frame: ``ids: (P,)`` sorted unique, ``uv: (P, 2)``."""
@@ -255,8 +267,9 @@ class Tracker:
             mean, modes = model.mean[:, cols], model.modes[:, :, cols]
         w_all = uv.T - uv.mean(axis=0)[:, None]                  # (2, P)
         fit = fit_subset(known.size)
-        R, c, _ = fit_frame(*centred(w_all[:, known[fit]], mean[:, fit], modes[:, :, fit]),
-                            self.R, self.c, self.temporal_prior,
+        w_fit = w_all[:, known[fit]]
+        R, c, _ = fit_frame(w_fit - w_fit.mean(axis=1, keepdims=True),
+                            *self._fit_model(cols[fit]), self.R, self.c, self.temporal_prior,
                             variances=model.variances, noise_share=self.noise_share)
         w = w_all[:, known]
         w = w - w.mean(axis=1, keepdims=True)
@@ -282,12 +295,6 @@ def fit_subset(n, most=FIT_TRACKS):
     (the fit's cost then does not grow with the tracks; every track's depth is still
     computed)."""
     return slice(None) if n <= most else np.linspace(0, n - 1, most).astype(int)
-
-
-def centred(w, mean, modes):
-    """``w: (2, P)``, ``mean: (3, P)``, ``modes: (r, 3, P)`` each centred over the tracks."""
-    return (w - w.mean(axis=1, keepdims=True), mean - mean.mean(axis=1, keepdims=True),
-            modes - modes.mean(axis=2, keepdims=True))
 
 
 def neighbour_depth(uv_known, z_known, uv_new, k=NEW_TRACK_NEIGHBOURS):
