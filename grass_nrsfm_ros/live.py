@@ -31,11 +31,10 @@ import threading
 import time
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
 from grass_nrsfm_ros.nrsfm.measurement import centre, InvalidInputError
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation, rigid_world_shape
-from grass_nrsfm_ros.nrsfm.solver import BLAS_THREADS
+from grass_nrsfm_ros.nrsfm.solver import one_blas_thread
 from grass_nrsfm_ros.nrsfm.tracking import build_model, fit_subset, rigid_model, Tracker
 from grass_nrsfm_ros.params import OUTPUTS
 from grass_nrsfm_ros.pipeline import (common_ids, DEPTH_FLIP, FrameResult, make_windows,
@@ -329,7 +328,7 @@ def solve_window(windows, window, output='live', published=None, progress=None):
     ShapeModel, first flipping it (and ``windows``' kept solution) when its depth disagrees with
     ``published`` (``{stamp: (ids, z)}`` published before this model, see
     :func:`disagrees_with`). Output 'windows': no model (None). BLAS on BLAS_THREADS threads."""
-    with threadpool_limits(limits=BLAS_THREADS, user_api='blas'):
+    with one_blas_thread():
         released = windows.releases(window)                 # not solved again: no new model
         results = windows.solve(window, progress=progress)
         if output == 'windows' or released:

@@ -66,7 +66,6 @@ import time
 
 import numpy as np
 from scipy.spatial import cKDTree
-from threadpoolctl import threadpool_limits
 
 from grass_nrsfm_ros import params
 from grass_nrsfm_ros.cloud import strictly_increasing
@@ -74,10 +73,10 @@ from grass_nrsfm_ros.nrsfm import GrassmannNRSfM, WarmStart
 from grass_nrsfm_ros.nrsfm.density import fill_dropped
 from grass_nrsfm_ros.nrsfm.measurement import as_frames, centre
 from grass_nrsfm_ros.nrsfm.rotation import (align_rotations, choose_rank, DEFAULT_CANDIDATES,
-                                            estimate_rotations, max_rank,
+                                            estimate_rotations, max_rank, normalised_svd,
                                             rigid_factorisation, rotations_from_rows,
                                             rotations_from_start)
-from grass_nrsfm_ros.nrsfm.solver import BLAS_THREADS
+from grass_nrsfm_ros.nrsfm.solver import one_blas_thread
 from grass_nrsfm_ros.params import MIN_WINDOW_FRAMES
 
 #: fewest tracks a window may be solved on when ``mapping_tracks`` caps them
@@ -418,7 +417,7 @@ class SlidingWindow:
         ``min_tracks`` tracks. ``progress(iteration, report)`` is handed to solvers whose
         ``fit`` takes it (an exception raised there abandons the solve and propagates).
         BLAS runs on BLAS_THREADS threads throughout, as in the solver."""
-        with threadpool_limits(limits=BLAS_THREADS, user_api='blas'):
+        with one_blas_thread():
             return self._solve(window, progress)
 
     def _solve(self, window, progress):
@@ -684,9 +683,13 @@ class SlidingWindow:
         top = min(max(DEFAULT_CANDIDATES), max_rank(F, W.shape[1]))
         ranks = [K] if K == 1 else [k for k in (K - 1, K, K + 1) if 1 <= k <= top]
         estimates = {}
+        try:
+            svd = normalised_svd(W)                     # one SVD for every rank
+        except (ValueError, np.linalg.LinAlgError):
+            return R0, K
         for k in ranks:
             try:
-                estimates[k] = rotations_from_start(W, k, R0, known)
+                estimates[k] = rotations_from_start(W, k, R0, known, _svd=svd)
             except (ValueError, np.linalg.LinAlgError):
                 continue
         if not estimates:

@@ -55,8 +55,8 @@ def test_centred_threshold_keeps_the_mean_row_and_agrees_wide_and_tall():
     F, P, beta = 12, 20, 1.0
     state, rng = sharp_state(F, P, 'centred')
     X = rng.normal(size=(F, 3 * P)) + 3.0 * rng.normal(size=(1, 3 * P))    # (F, 3P)
-    op, _, nuclear = state._sharp_operator(X @ X.T, beta, 0)
-    wide = op @ X
+    (left, right), _, nuclear = state._sharp_operator(X @ X.T, beta, 0)
+    wide = left @ (right.T @ X)
     tall, _, nuclear_tall = state._sharp_tall(X, beta, 0)
     np.testing.assert_allclose(wide, tall, atol=1e-10)
     assert np.isclose(nuclear, nuclear_tall)
@@ -67,7 +67,8 @@ def test_centred_threshold_keeps_the_mean_row_and_agrees_wide_and_tall():
     np.testing.assert_allclose(dev_out[:F - 1], np.maximum(dev_in[:F - 1] - 2.0, 0), atol=1e-9)
     assert np.isclose(nuclear, dev_out.sum())
     plain, _ = sharp_state(F, P, 'plain')
-    shrunk = plain._sharp_operator(X @ X.T, beta, 0)[0] @ X
+    left, right = plain._sharp_operator(X @ X.T, beta, 0)[0]
+    shrunk = left @ (right.T @ X)
     assert np.linalg.norm(shrunk.mean(axis=0)) < np.linalg.norm(X.mean(axis=0)) - 0.1
 
 

@@ -4,6 +4,8 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+import scipy.linalg  # noqa: F401  (its BLAS loaded, as in every solve)
+from threadpoolctl import threadpool_info, threadpool_limits
 
 from grass_nrsfm_ros.nrsfm import admm, GrassmannNRSfM, WarmStart
 from grass_nrsfm_ros.nrsfm.config import admm_settings
@@ -11,6 +13,7 @@ from grass_nrsfm_ros.nrsfm.grassmann import block_bases
 from grass_nrsfm_ros.nrsfm.measurement import InvalidInputError
 from grass_nrsfm_ros.nrsfm.problem import initial_shapes, Problem
 from grass_nrsfm_ros.nrsfm.schema import solver_defaults
+from grass_nrsfm_ros.nrsfm.solver import BLAS_THREADS, one_blas_thread
 from grass_nrsfm_ros.nrsfm.synthetic import make_sequence
 
 
@@ -179,3 +182,18 @@ def test_temporal_bases_are_those_of_the_projected_sharp_shapes():
     for (v, sv), (v_ref, sv_ref) in zip(state.t_bases, expected):
         np.testing.assert_allclose(sv, sv_ref, rtol=1e-4)
         np.testing.assert_allclose(v @ v.T, v_ref @ v_ref.T, atol=1e-4)
+
+
+def test_one_blas_thread_limits_every_blas_and_restores_it():
+    """The solver's BLAS limit (one controller built once) caps numpy's and scipy's BLAS to
+    BLAS_THREADS inside it, also on a second use, and gives the thread counts back after."""
+    def blas_threads():
+        return sorted(i['num_threads'] for i in threadpool_info() if i['user_api'] == 'blas')
+
+    with threadpool_limits(limits=2, user_api='blas'):
+        before = blas_threads()
+        assert before and max(before) == 2
+        for _ in range(2):
+            with one_blas_thread():
+                assert set(blas_threads()) == {BLAS_THREADS}
+            assert blas_threads() == before

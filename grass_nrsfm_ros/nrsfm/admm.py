@@ -440,47 +440,63 @@ class AdmmState:
         return B, bases
 
     def _shrink(self, G, beta):
-        """Eigenvectors of a Gram matrix and the SVT factors ``max(s - w/beta, 0) / s``, w the
-        singular value's weight (``gamma``, or the weighted norm's weights by rank)."""
+        """Eigenvectors of a Gram matrix, the SVT factors ``max(s - w/beta, 0) / s`` (w the
+        singular value's weight: ``gamma``, or the weighted norm's weights by rank) and the
+        singular values ``s``, ascending."""
         vals, vecs = np.linalg.eigh(G)
         sv = np.sqrt(np.maximum(vals, 0.0))
         w = self.gamma if self.weights is None else self.weights   # the Gram is min(F, 3P) wide
         shrink = np.where(sv > 0, np.maximum(sv - w / beta, 0.0) / np.where(
             sv > 0, sv, 1.0), 0.0)
-        return vecs, shrink
+        return vecs, shrink, sv
 
     def _nuclear(self, gram):
         """The (weighted) nuclear norm of a matrix of Gram ``gram``, divided by gamma where
         weighted so that ``gamma * value`` is the objective's term."""
-        sv = np.sqrt(np.maximum(np.linalg.eigvalsh(gram), 0.0))
+        return self._weighted_sum(np.sqrt(np.maximum(np.linalg.eigvalsh(gram), 0.0)))
+
+    def _nuclear_of_factors(self, L, core):
+        """:meth:`_nuclear` of the Gram ``L core L^T`` (``L: (F, r)``, ``core: (r, r)`` PSD, r
+        small) through an ``(r, r)`` matrix with the Gram's nonzero eigenvalues."""
+        vals, vecs = np.linalg.eigh(core)
+        K = L @ (vecs * np.sqrt(np.maximum(vals, 0.0)))         # the Gram is K K^T
+        return self._weighted_sum(np.sqrt(np.maximum(np.linalg.eigvalsh(K.T @ K), 0.0)))
+
+    def _weighted_sum(self, sv):
+        """``sum(sv)``, or the weighted norm's ``sum(w_i sv_i) / gamma`` for the top singular
+        values ``sv`` (ascending; the rest zero)."""
         if self.weights is None:
             return float(sv.sum())
-        return float((self.weights * sv).sum()) / self.gamma
+        return float((self.weights[self.weights.size - sv.size:] * sv).sum()) / self.gamma
 
     def _sharp_operator(self, G, beta, it):
-        """Wide case (F <= 3P): ``op: (F, F)`` with ``S# = op X`` and the Gram of S#."""
+        """Wide case (F <= 3P), from the Gram ``G: (F, F)`` of X: ``S# = left right^T X``
+        with ``left, right: (F, r)`` (r: the singular values the SVT keeps, plus the mean row
+        where centred), the Gram of S# and the penalised norm. Applied as two thin products,
+        S# costs ``2 r / F`` of one ``F x F`` operator."""
         F = G.shape[0]
+        H = np.eye(F) - 1.0 / F if self.centred else None
+        vecs, shrink, _ = self._shrink(G if H is None else H @ G @ H, beta)
+        kept = shrink > 0
+        right = vecs[:, kept]                           # SVT: V diag(shrink) V^T, kept part
+        left = right * shrink[kept]
         if self.centred:        # SVT of H X (H: the centring over frames), the mean row kept
-            H = np.eye(F) - 1.0 / F
-            vecs, shrink = self._shrink(H @ G @ H, beta)
-            M = (vecs * shrink) @ vecs.T @ H + 1.0 / F
-            G1 = M @ G @ M.T
-        else:
-            vecs, shrink = self._shrink(G, beta)
-            M = (vecs * shrink) @ vecs.T
-            G1 = M @ G @ M
-        op = M
+            mean = np.full((F, 1), 1.0 / np.sqrt(F))
+            right = right - right.mean(axis=0)                  # H V
+            left, right = np.hstack([left, mean]), np.hstack([right, mean])
+        core = right.T @ G @ right                      # Gram of S#: left core left^T
+        G1 = left @ core @ left.T
         if self.s.temporal:
             B, self.t_bases = self._temporal(G1, beta, it)
-            op = B @ M
-            G1 = B @ G1 @ B.T
-        penalised = H @ G1 @ H if self.centred else G1
-        return op, G1, self._nuclear(penalised)
+            left = B @ left
+            G1 = left @ core @ left.T
+        penalised = left if H is None else H @ left
+        return (left, right), G1, self._nuclear_of_factors(penalised, core)
 
     def _sharp_tall(self, X, beta, it):
         """Tall case (F > 3P): S# of ``X: (F, 3P)`` through the ``3P x 3P`` Gram."""
         mean = X.mean(axis=0, keepdims=True) if self.centred else 0.0
-        vecs, shrink = self._shrink((X - mean).T @ (X - mean), beta)
+        vecs, shrink, _ = self._shrink((X - mean).T @ (X - mean), beta)
         Z = (X - mean) @ ((vecs * shrink) @ vecs.T) + mean          # = M X
         G1 = Z @ Z.T
         if self.s.temporal:
@@ -492,15 +508,18 @@ class AdmmState:
 
     # sweep 2: S#, gap and Y1 ---------------------------------------------------------------------
     def _sweep_multipliers(self, beta, op=None, sharp=None):
-        """``S# = op X`` (or the given ``sharp: (F, 3P)``), ``Y1 += beta (S# - S)``; returns
-        ``max |S# - S|``."""
+        """``S# = left right^T X`` (``op = (left, right)``, :meth:`_sharp_operator`) or the
+        given ``sharp: (F, 3P)``, ``Y1 += beta (S# - S)``; returns ``max |S# - S|``."""
         F, gap = self.F, 0.0
-        op = None if op is None else op.astype(self.dtype)
+        if op is not None:
+            left, right_t = (np.ascontiguousarray(a, dtype=self.dtype) for a in (op[0],
+                                                                                 op[1].T))
         for _, cols in self.blocks:
             n = cols.stop - cols.start
             if sharp is None:
                 X = blocked_view(self.X, F, 3, cols).reshape(F, 3 * n)
-                new = np.matmul(op, X, out=self.buffers[2].view(F, 3, n).reshape(F, 3 * n))
+                new = np.matmul(left, right_t @ X,
+                                out=self.buffers[2].view(F, 3, n).reshape(F, 3 * n))
                 new = new.reshape(F, 3, n)
             else:
                 new = sharp.reshape(F, 3, self.P)[:, :, cols]

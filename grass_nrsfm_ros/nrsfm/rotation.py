@@ -435,7 +435,7 @@ def estimate_rotations(W, K='auto', *, candidates=DEFAULT_CANDIDATES, random_sta
     return RotationEstimate(R=results[chosen], K=chosen, scores=scores)
 
 
-def rotations_from_start(W, K, R0, known):
+def rotations_from_start(W, K, R0, known, _svd=None):
     """Dai et al.'s rotations of ``W: (2F, P)`` at rank ``K``, refined from given rotations
     ``R0: (F, 3, 3)`` on the ``known: (F,)`` frames instead of seeded starts (the incremental
     estimate of a window that overlaps a solved one).
@@ -444,8 +444,9 @@ def rotations_from_start(W, K, R0, known):
     frames (``c_f`` the basis coefficients: the smallest right singular vector of that linear
     system), refined over every frame as in :func:`rotations_for_rank`, put in R0's world frame
     (:func:`to_world_frame`); known frames are re-estimated, not kept. Raises ValueError where
-    W's rank is too low or a frame's rows degenerate. Returns a :class:`RotationEstimate`."""
-    U, d, Vt, Wn, _ = normalised_svd(W)
+    W's rank is too low or a frame's rows degenerate. ``_svd``: W's :func:`normalised_svd`,
+    when already computed (several ranks of one W). Returns a :class:`RotationEstimate`."""
+    U, d, Vt, Wn, _ = _svd if _svd is not None else normalised_svd(W)
     n = min(3 * int(K), _numerical_rank(d))
     if n < 3:
         raise ValueError(f'W has numerical rank {_numerical_rank(d)} < 3')
