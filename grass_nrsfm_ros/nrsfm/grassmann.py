@@ -212,12 +212,15 @@ def block_bases(G, edges, rank):
     of ``G_kk``) and ``sv_k: (r_k,)``; the basis of the block's shape subspace is
     ``Psi_k = X_k^T V_k / sv_k`` and its rank-r projection of ``X_k`` is ``V_k V_k^T X_k``.
     """
-    out = []
-    for k in range(len(edges) - 1):
-        r = slice(edges[k], edges[k + 1])
-        vals, vecs = np.linalg.eigh(G[r, r])
-        idx = np.argsort(vals)[::-1][:min(rank, r.stop - r.start)]
-        out.append((vecs[:, idx], np.sqrt(np.maximum(vals[idx], 0.0))))
+    sizes = np.diff(edges)
+    out = [None] * sizes.size
+    for size in np.unique(sizes):           # blocks of one size: one batched eigh
+        ks = np.flatnonzero(sizes == size)
+        rows = edges[ks][:, None] + np.arange(size)
+        vals, vecs = np.linalg.eigh(G[rows[:, :, None], rows[:, None, :]])
+        top = np.arange(size - 1, size - 1 - min(rank, size), -1)   # descending
+        for i, k in enumerate(ks):
+            out[k] = (vecs[i][:, top], np.sqrt(np.maximum(vals[i][top], 0.0)))
     return out
 
 
