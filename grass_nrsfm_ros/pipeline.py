@@ -431,7 +431,7 @@ class SlidingWindow:
         Wc, _ = centre(problem.W)
         init = self._start_for(problem, Wc)
         keep = self._mapped_tracks(problem.ids)
-        solver = self.solver_factory()
+        solver = self._schedule_for(self.solver_factory(), problem, init)
         kwargs = {} if init is None else {'init': subset_init(init, keep)}
         if progress is not None and _takes_progress(solver.fit):
             kwargs['progress'] = progress
@@ -654,6 +654,18 @@ class SlidingWindow:
         if ov is not None and self._previous.groups is not None:
             groups = np.asarray(self._previous.groups)[self._donors(problem, ov)]
         return cls(groups=groups, rotation_method=self._carried_rotation_method(problem))
+
+    def _schedule_for(self, solver, problem, init):
+        """``solver``, stopping at its ``resumed_beta_max`` where ``problem`` is a window with
+        context under 'resume' that does not resume its predecessor (the second window of a
+        sequence: the first is a rigid start, docs/decisions/0415), its rotation check's solves
+        included: they reach the same shapes by then (docs/decisions/0425). Solvers without
+        that parameter keep their own schedule."""
+        params = solver.get_params() if hasattr(solver, 'set_params') else {}
+        if (self.warm_start == 'resume' and problem.n_context and 'resumed_beta_max' in params
+                and not getattr(init, 'resumed', False)):
+            solver.set_params(beta_max=min(params['beta_max'], params['resumed_beta_max']))
+        return solver
 
     def _resumable(self, problem, ov):
         """True if ``problem`` (with context) can resume the previous solution's run."""

@@ -115,6 +115,16 @@ def test_resume_warm_start_resumes_the_previous_run_at_equal_accuracy():
     # window 0 from the rigid factorisation, window 1 (10 context frames) a full solve with
     # Dai's rank search and the rotation check; every later window resumes its predecessor
     assert reports[1].rotation_checked and reports[1].rotation_method == 'dai'
+    # window 1 cannot resume (window 0 has no Dai rank) yet stops where the resumed windows
+    # do, at resumed_beta_max, its rotation check's two solves included (record 0425);
+    # window 0 keeps the whole schedule
+    solver = GrassmannNRSfM()
+    beta, schedule = solver.beta0, 1
+    while beta < solver.resumed_beta_max:
+        beta, schedule = min(beta * solver.rho, solver.resumed_beta_max), schedule + 1
+    assert len(reports[1].solves) >= 3
+    assert all(n <= schedule for *_, n in reports[1].solves), reports[1].solves
+    assert max(n for *_, n in reports[0].solves) > schedule
     for i in range(2, len(inits)):
         init = inits[i]
         assert reports[i].rotation_method == 'given' and not reports[i].rotation_checked

@@ -187,8 +187,9 @@ SOLVER_PARAMS = (
     _number('warm_beta0', 0.01, 'Initial beta when initial shapes are given (warm start).',
             open_low=True),
     _number('resumed_beta_max', 10.0, 'Largest penalty (>= beta0) of a solve that resumes an '
-            "overlapping window's solution (a sliding window's 'resume' warm start): it stops "
-            'there.', open_low=True),
+            "overlapping window's solution (a sliding window's 'resume' warm start), and of "
+            "that warm start's windows with context that cannot resume (the second): they "
+            'stop there.', open_low=True),
     Param('random_state', 0, None, 'Seed for the k-means++ grouping and the rotation step.',
           range=(0, INT_MAX), group='solver', number=int, nullable=True),
     # research switches: no default uses them
