@@ -440,15 +440,14 @@ class AdmmState:
         return B, bases
 
     def _shrink(self, G, beta):
-        """Eigenvectors of a Gram matrix, the SVT factors ``max(s - w/beta, 0) / s`` (w the
-        singular value's weight: ``gamma``, or the weighted norm's weights by rank) and the
-        singular values ``s``, ascending."""
+        """Eigenvectors of a Gram matrix and the SVT factors ``max(s - w/beta, 0) / s``, w the
+        singular value's weight (``gamma``, or the weighted norm's weights by rank)."""
         vals, vecs = np.linalg.eigh(G)
         sv = np.sqrt(np.maximum(vals, 0.0))
         w = self.gamma if self.weights is None else self.weights   # the Gram is min(F, 3P) wide
         shrink = np.where(sv > 0, np.maximum(sv - w / beta, 0.0) / np.where(
             sv > 0, sv, 1.0), 0.0)
-        return vecs, shrink, sv
+        return vecs, shrink
 
     def _nuclear(self, gram):
         """The (weighted) nuclear norm of a matrix of Gram ``gram``, divided by gamma where
@@ -476,7 +475,7 @@ class AdmmState:
         S# costs ``2 r / F`` of one ``F x F`` operator."""
         F = G.shape[0]
         H = np.eye(F) - 1.0 / F if self.centred else None
-        vecs, shrink, _ = self._shrink(G if H is None else H @ G @ H, beta)
+        vecs, shrink = self._shrink(G if H is None else H @ G @ H, beta)
         kept = shrink > 0
         right = vecs[:, kept]                           # SVT: V diag(shrink) V^T, kept part
         left = right * shrink[kept]
@@ -496,7 +495,7 @@ class AdmmState:
     def _sharp_tall(self, X, beta, it):
         """Tall case (F > 3P): S# of ``X: (F, 3P)`` through the ``3P x 3P`` Gram."""
         mean = X.mean(axis=0, keepdims=True) if self.centred else 0.0
-        vecs, shrink, _ = self._shrink((X - mean).T @ (X - mean), beta)
+        vecs, shrink = self._shrink((X - mean).T @ (X - mean), beta)
         Z = (X - mean) @ ((vecs * shrink) @ vecs.T) + mean          # = M X
         G1 = Z @ Z.T
         if self.s.temporal:
@@ -512,8 +511,8 @@ class AdmmState:
         given ``sharp: (F, 3P)``, ``Y1 += beta (S# - S)``; returns ``max |S# - S|``."""
         F, gap = self.F, 0.0
         if op is not None:
-            left, right_t = (np.ascontiguousarray(a, dtype=self.dtype) for a in (op[0],
-                                                                                 op[1].T))
+            left = np.ascontiguousarray(op[0], dtype=self.dtype)
+            right_t = np.ascontiguousarray(op[1].T, dtype=self.dtype)
         for _, cols in self.blocks:
             n = cols.stop - cols.start
             if sharp is None:
