@@ -658,8 +658,8 @@ class SlidingWindow:
     def _schedule_for(self, solver, problem, init):
         """``solver``, stopping at its ``resumed_beta_max`` where ``problem`` is a window with
         context under 'resume' that does not resume its predecessor (the second window of a
-        sequence: the first is a rigid start, docs/decisions/0415), its rotation check's solves
-        included: they reach the same shapes by then (docs/decisions/0425). Solvers without
+        sequence: the first is a rigid start, docs/decisions/archive/0415), its rotation check's
+        solves included: they reach the same shapes by then (docs/decisions/0425). Solvers without
         that parameter keep their own schedule."""
         params = solver.get_params() if hasattr(solver, 'set_params') else {}
         if (self.warm_start == 'resume' and problem.n_context and 'resumed_beta_max' in params
