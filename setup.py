@@ -55,6 +55,7 @@ setup(
         'mcap-ros2-support>=0.5',
         'rosbags>=0.10,<0.12',
         'PyYAML>=6',
+        'opencv-python-headless>=4.10,<6',
     ],
     extras_require={
         'ros': ROS_JAZZY_WHEELS,
