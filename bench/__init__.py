@@ -2,7 +2,7 @@
 
 Run ``python -m bench [--full] [--only SUITE ...] [--smoke]``; results go to
 ``bench/results/<suite>.json`` (``bench/results/smoke/`` for ``--smoke``) with PNG plots beside
-them, and ``python -m bench.table [--write README.md]`` turns them into the README table.
+them, and ``python -m bench.table --write docs/results.md`` turns them into the results page.
 
 BLAS threads default to 1 (set before numpy is imported): the solvers run many small
 decompositions, and timings on a shared machine are only comparable single-threaded. Export

@@ -1,16 +1,23 @@
-"""``python -m bench.table [--results DIR] [--write README.md]``: the README's benchmark tables
-from the JSON in bench/results, printed as markdown between the markers
-``<!-- bench-table:start -->`` and ``<!-- bench-table:end -->``; ``--write FILE`` replaces the
-lines between those markers in FILE instead.
+"""``python -m bench.table [--results DIR] [--write docs/results.md]``: the benchmark results
+page, generated from the JSON in bench/results: a header saying how to regenerate it, then one
+table per suite (with links to its plots); printed, or written to FILE with ``--write FILE``.
 """
 import argparse
 import json
+import os
 from pathlib import Path
 import sys
 
 from . import common
 
-START, END = '<!-- bench-table:start -->', '<!-- bench-table:end -->'
+#: where the page lives and how it is regenerated (the page's header)
+PAGE = common.REPO / 'docs' / 'results.md'
+HEADER = ('# Benchmark results', '',
+          'Generated from `bench/results/*.json`; do not edit by hand. Regenerate with',
+          '`python -m bench [--full]` (the quick subset, or every case) then '
+          '`python -m bench.table --write docs/results.md`. Each table names the run it comes '
+          'from (quick or full, date, commit, CPUs); the node and load figures have their own '
+          'scripts (`python -m bench.live --node`, `python -m bench.load`).')
 METHOD_NAMES = {'ours': 'ours', 'rigid': 'rigid', 'bmm': 'BMM', 'pta': 'PTA',
                 'pta_dai': 'PTA (Dai R)'}
 
@@ -235,60 +242,78 @@ def grassmann_table(doc):
     return lines
 
 
-SECTIONS = (('accuracy', 'Accuracy (e3D; "A": Akhter\'s metric, the one of the published mocap '
-             'numbers; PTA K chosen against ground truth)', accuracy_table),
-            ('noise', 'Noise', noise_table),
-            ('parameters', 'Parameters and ablation', parameters_table),
-            ('scale', 'Scale (fresh process per case; exponents: CPU time / memory)', scale_table),
-            ('streaming', 'Streaming (pipeline.SlidingWindow, no ROS)', streaming_table),
-            ('live', 'Live (tracking on arrival, windows behind it; e3D; offline, each window '
-             'solved as it closes)', live_table),
-            ('rotations', "Rotations and shape norm (Akhter's metric on mocap; Dai's vs Organic "
-             "Priors' rotations, plain vs OP's weighted partial norm; records 0500, 0501)",
+#: (suite, heading, what the table shows, the table's lines from the suite's JSON)
+SECTIONS = (('accuracy', 'Accuracy', 'e3D; "A": Akhter\'s metric, the one of the published mocap '
+             'numbers; PTA K chosen against ground truth', accuracy_table),
+            ('noise', 'Noise', '', noise_table),
+            ('parameters', 'Parameters and ablation', '', parameters_table),
+            ('scale', 'Scale', 'A fresh process per case; exponents: CPU time / memory',
+             scale_table),
+            ('streaming', 'Streaming', 'The sliding windows, no ROS', streaming_table),
+            ('live', 'Live', 'Tracking on arrival, windows behind it; e3D; offline, each window '
+             'solved as it closes', live_table),
+            ('rotations', 'Rotations and shape norm', "Akhter's metric on mocap; Dai's vs Organic "
+             "Priors' rotations, plain vs OP's weighted partial norm; records 0500, 0501",
              rotations_table),
-            ('grassmann', 'Grassmann branches probed (record 0502)', grassmann_table))
+            ('grassmann', 'Grassmann branches probed', 'Record 0502', grassmann_table))
 
 
-def markdown(results):
-    out = [START, '']
-    for suite, title, make in SECTIONS:
-        doc = load(results, suite)
-        if not doc or not doc.get('rows'):
-            continue
+def plot_links(doc, results, page_dir):
+    """A 'Plots:' line linking ``doc``'s PNG files (paths relative to ``page_dir``), or []."""
+    names = [n for n in doc.get('plots') or [] if (Path(results) / n).is_file()]
+    if not names:
+        return []
+    here = Path(results).resolve()
+    links = [f'[{Path(n).stem}]({Path(os.path.relpath(here / n, page_dir)).as_posix()})'
+             for n in names]
+    return ['Plots: ' + ', '.join(links), '']
+
+
+def anchor(name):
+    """The GitHub anchor of the heading ``name``."""
+    return ''.join(c for c in name.lower().replace(' ', '-') if c.isalnum() or c == '-')
+
+
+def sections(results):
+    """``[(heading, detail, make, doc)]`` of the suites with rows in ``results``."""
+    found = [(name, detail, make, load(results, suite))
+             for suite, name, detail, make in SECTIONS]
+    return [s for s in found if s[3] and s[3].get('rows')]
+
+
+def markdown(results, page_dir='.'):
+    """A contents line, then the tables of every suite with results in ``results``, one
+    section each (plots linked relative to ``page_dir``)."""
+    present = sections(results)
+    out = ['Contents: ' + ', '.join(f'[{name}](#{anchor(name)})' for name, *_ in present), '']
+    for name, detail, make, doc in present:
         env = doc.get('environment', {})
-        out += [f'**{title}** ({doc["mode"]} run, {env.get("date", "?")}, commit '
-                f'{env.get("git", "?")}, {env.get("cpus", "?")} CPUs)', '']
-        out += make(doc) + ['']
-    out.append(END)
-    return '\n'.join(out)
+        out += [f'## {name}', '', (f'{detail}. ' if detail else '')
+                + f'From the {doc["mode"]} run of {env.get("date", "?")}, commit '
+                f'{env.get("git", "?")}, {env.get("cpus", "?")} CPUs.', '']
+        out += make(doc) + [''] + plot_links(doc, results, page_dir)
+    return '\n'.join(out).rstrip('\n') + '\n'
 
 
-def rewrite(path, text):
-    """Replace the marker block of ``path`` with ``text``; False if the markers are missing."""
-    lines = Path(path).read_text().splitlines()
-    try:
-        i, j = lines.index(START), lines.index(END)
-    except ValueError:
-        return False
-    if j < i:
-        return False
-    Path(path).write_text('\n'.join(lines[:i] + text.splitlines() + lines[j + 1:]) + '\n')
-    return True
+def page(results, page_dir='.'):
+    """The whole results page: the header, then :func:`markdown`."""
+    return '\n'.join(HEADER) + '\n\n' + markdown(results, page_dir)
 
 
 def main(argv=None):
     parser = argparse.ArgumentParser(prog='python -m bench.table', description=__doc__)
     parser.add_argument('--results', default=str(common.RESULTS), help='folder of suite JSON')
-    parser.add_argument('--write', metavar='FILE', help='rewrite the marker block of FILE')
+    parser.add_argument('--write', metavar='FILE',
+                        help=f'write the page to FILE (the one linked from the README: '
+                        f'{PAGE.relative_to(common.REPO)})')
     args = parser.parse_args(argv)
-    text = markdown(args.results)
-    if args.write:
-        if not rewrite(args.write, text):
-            print(f'{args.write}: markers {START} ... {END} not found', file=sys.stderr)
-            return 1
-        print(f'{args.write}: benchmark tables rewritten')
+    if not args.write:
+        print(page(args.results), end='')
         return 0
-    print(text)
+    path = Path(args.write)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(page(args.results, path.parent.resolve()))
+    print(f'{path}: benchmark results page written')
     return 0
 
 

@@ -65,16 +65,31 @@ def test_accuracy_errors_are_errors(smoke_results):
         assert 0.0 <= row['e3d'] < 2.0, row        # relative error of a sane reconstruction
 
 
-def test_table_renders_and_rewrites_between_markers(smoke_results, tmp_path):
+def test_results_page_renders_every_suite(smoke_results, tmp_path):
+    page = tmp_path / 'docs' / 'results.md'
+    assert table.main(['--results', str(smoke_results), '--write', str(page)]) == 0
+    text = page.read_text()
+    assert text.startswith(table.HEADER[0] + '\n')
+    assert 'python -m bench.table --write docs/results.md' in text
+    for suite, name, _, _ in table.SECTIONS:
+        if suite in SUITES:
+            assert f'\n## {name}\n' in text and f'(#{table.anchor(name)})' in text, suite
+    assert '| sequence | F x P | ours |' in text          # the accuracy table's header row
 
-    text = table.markdown(smoke_results)
-    assert text.startswith(table.START) and text.endswith(table.END)
-    readme = tmp_path / 'README.md'
-    readme.write_text(f'# title\n\nbefore\n{table.START}\nold\n{table.END}\nafter\n')
-    assert table.main(['--results', str(smoke_results), '--write', str(readme)]) == 0
-    new = readme.read_text()
-    assert 'old' not in new and new.startswith('# title\n\nbefore\n') and new.endswith('after\n')
-    assert new.count(table.START) == 1 and new.count(table.END) == 1
-    no_markers = tmp_path / 'plain.md'
-    no_markers.write_text('nothing here\n')
-    assert table.main(['--results', str(smoke_results), '--write', str(no_markers)]) == 1
+
+def test_results_page_links_the_plots_that_exist(tmp_path):
+    results, page_dir = tmp_path / 'bench' / 'results', tmp_path / 'docs'
+    results.mkdir(parents=True)
+    (results / 'noise.png').write_bytes(b'png')
+    doc = {'mode': 'quick', 'sequence': 'seq', 'F': 2, 'P': 3, 'plots': ['noise.png', 'gone.png'],
+           'rows': [{'method': 'ours', 'r': 0.0, 'e3d_mean': 0.1, 'e3d_std': 0.0}]}
+    (results / 'noise.json').write_text(json.dumps(doc))
+    text = table.page(results, page_dir)
+    assert 'Plots: [noise](../bench/results/noise.png)\n' in text
+    assert 'gone' not in text and '## Accuracy' not in text     # only what exists is shown
+
+
+def test_committed_results_page_is_the_generated_one():
+    """docs/results.md is what ``python -m bench.table --write docs/results.md`` writes from
+    the committed bench/results (regenerate it after a benchmark run)."""
+    assert table.PAGE.read_text() == table.page(table.common.RESULTS, table.PAGE.parent)
