@@ -1,0 +1,24 @@
+"""Record 0007 (regrouping): e3D and points regrouped at affinity_min 0.5 (the paper's gate,
+default) and 0 (every group may exchange points).
+
+    python -m bench.records.r0007 [--full]
+
+Quick: dense face 99 x 1,000 (or the bending sheet 60 x 1,000 without the face model);
+``--full``: face 99 x 2,000 (the record's case) and the five synthetic kinds.
+"""
+from grass_nrsfm_ros.nrsfm.synthetic import kinds
+from . import compare
+
+SETTINGS = [('affinity_min 0.5', {}), ('affinity_min 0', {'affinity_min': 0.0})]
+
+
+def main(argv=None):
+    args = compare.parse(argv, __doc__)
+    cases = compare.face_cases((0,), P=2000 if args.full else 1000)
+    if args.full or not cases:
+        cases += compare.synthetic_cases(kinds() if args.full else ('bending',), P=1000)
+    compare.table(cases, SETTINGS, extra=lambda report: f'{report.regrouped_points:4d}mv')
+
+
+if __name__ == '__main__':
+    main()
