@@ -27,12 +27,10 @@ SOLVER_PREFIX = 'solver.'
 README_BEGIN = '<!-- params-table -->'
 README_END = '<!-- /params-table -->'
 
-#: values of ``warm_start`` and ``warm_rotations``
-WARM_STARTS = ('model', 'full', 'off', 'resume')
-WARM_ROTATIONS = ('refine', 'fit', 'solver')
-#: values of ``output`` and ``mapping``
-OUTPUTS = ('live', 'windows')
-MAPPINGS = ('process', 'worker', 'inline')
+#: values of ``warm_start``
+WARM_STARTS = ('resume', 'model')
+#: values of ``mapping``
+MAPPINGS = ('process', 'inline')
 #: values of ``refined_from``
 REFINED_FROM = ('last_window', 'first_window')
 #: values of ``input_reliability``
@@ -53,14 +51,12 @@ NODE_PARAMS = (
           "What each window's solve takes from the previous window's solution on the "
           "overlapping frames and tracks. 'resume': its shapes and spatial groups, rotations by "
           "Dai's method refined from the previous ones at the carried rank (no rank search, no "
-          "rotation check), the ADMM's penalty schedule from its start. "
+          "rotation check), the ADMM's penalty schedule from its start, stopped at beta 10. "
           "'model': the groups and the rotation method (Dai's or rigid; checked again once "
           'half the frames are new); rotations are re-estimated over window + context and '
-          "shapes start from the solver's own start. 'full': also the overlapping frames' "
-          "rotations (fixed) and shapes: cheaper, but it keeps the earlier windows' errors. "
-          "'off': each window from the solver's own start. A window without context frames "
-          '(the first) starts from the rigid factorisation.',
-          choices=WARM_STARTS),
+          "shapes start from the solver's own start (the reference the live benchmark compares "
+          "'resume' with). A window without context frames (the first) starts from the rigid "
+          'factorisation.', choices=WARM_STARTS),
     Param('context_frames', 60, int,
           'Earlier frames solved again with each window (not republished): the shape prior '
           'sees window + context frames. 0: the window alone.', range=(0, 100000)),
@@ -68,51 +64,32 @@ NODE_PARAMS = (
           'Older frames (beyond context_frames) also solved again with each window, spread '
           'evenly over the sequence so far, so long sequences keep their shape prior. 0: none; '
           'unused when context_frames is 0.', range=(0, 100000)),
-    Param('warm_rotations', 'solver', str,
-          "Rotations of a fully warm-started solve (warm_start 'full'): 'solver' (previous "
-          "ones fixed, new ones from the solver's estimate), 'refine' (Dai's over all frames, "
-          "aligned to the previous solution: one more rotation estimate per window), 'fit' "
-          '(previous ones; new frames fitted to the previous shape: cheapest, good on dense '
-          'surfaces, poor on sparse mocap).', choices=WARM_ROTATIONS),
-    Param('output', 'live', str,
-          "'live': every frame is reconstructed on arrival against the newest solved window's "
-          "shape model and published on points at once; each solved window's frames follow on "
-          "points/refined. 'windows': frames are published on points only when their window is "
-          'solved (the sliding-window behaviour).', choices=OUTPUTS),
     Param('refined_from', 'last_window', str,
-          "Which solve's shapes of a frame go out on points/refined (output 'live'). "
+          "Which solve's shapes of a frame go out on points/refined. "
           "'last_window': the solve that reconstructs the frame for the ceil(window_size / "
           'window_stride)-th time, as one of its own frames or as context (after the first '
           'window: the last window that has it among its own frames, with the most frames '
           'after it), window_size - window_stride frames later than the first; the last window '
-          "of a sequence publishes the rest. 'first_window': the first window that solves it. "
-          "With output 'windows' each frame goes out on points from its first window (the "
-          'sliding-window behaviour).', choices=REFINED_FROM),
+          "of a sequence publishes the rest. 'first_window': the first window that solves it.",
+          choices=REFINED_FROM),
     Param('flush_after', 1.0, float,
           'Seconds without an accepted tracks frame (checked once a second) after which the '
           'buffered frames are solved as the last window of the sequence: every frame not yet '
-          "on points/refined (output 'windows': on points) goes out, as at the end of a bag. A "
-          'later frame continues the sequence. 0: never.', range=(0.0, 1e6)),
+          'on points/refined goes out, as at the end of a bag. A later frame continues the '
+          'sequence. 0: never.', range=(0.0, 1e6)),
     Param('mapping', 'process', str,
           "Where windows are solved: 'process' (a child process beside the tracking, at a "
           'lower CPU priority: every frame is published at once, refined when its window is '
-          "solved; frames and models cross between the processes); 'worker' (a thread of the "
-          "node: the mapping's Python shares the tracking's GIL); 'inline' (in the input "
+          "solved; frames and models cross between the processes); 'inline' (in the input "
           'callback, before the next frame: the output equals the offline tools for the same '
           'input, but tracking waits for each solve).', choices=MAPPINGS),
     Param('mapping_tracks', 5000, int,
           'Most tracks a window is solved on (a fixed subset by track id); the others are '
           'filled in from their neighbours. 0: all tracks.', range=(0, 10000000)),
-    Param('tracking_prior', 0.0, float,
-          "Pull of each tracked frame's shape coefficients towards the previous frame's "
-          '(relative to the data term); 0: none.', range=(0.0, 1e6)),
     Param('residual_limit', 3.0, float,
           'A tracked frame whose reprojection residual exceeds this many times the median of '
           "the last 30 tracked frames' is still published, and the next window is closed early "
           'for a fresh model (once per model).', range=(1.0001, 1e6)),
-    Param('align_windows', True, bool,
-          "Flip each window's depth to agree with the previous window on the overlap, so "
-          'published clouds keep one orientation over time.'),
     Param('frame_id', '', str,
           'frame_id of the output clouds (the camera optical frame); empty: the input '
           "cloud's frame_id.", read_only=False),
@@ -144,9 +121,10 @@ NODE_PARAMS = (
           'Triangles whose longest edge (in the image) exceeds this many times the median edge '
           'are left out of the mesh (gaps, convex hull).', range=(1.0, 1e6)),
 )
-#: the parameters SlidingWindow takes
-WINDOW_KEYS = ('window_size', 'window_stride', 'min_tracks', 'warm_start', 'align_windows',
-               'context_frames', 'warm_rotations', 'key_frames', 'mapping_tracks')
+#: the parameters the windowing takes
+WINDOW_KEYS = ('window_size', 'window_stride', 'min_tracks', 'context_frames', 'key_frames')
+#: the parameters the mapper takes (besides the solver's)
+MAPPER_KEYS = ('min_tracks', 'warm_start', 'context_frames', 'mapping_tracks')
 
 
 def solver_params():

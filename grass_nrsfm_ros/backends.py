@@ -1,43 +1,36 @@
-"""MappingProcess: the mapping (window solves, models) in a child process beside the tracking.
+"""Mapping backends: where a :class:`~grass_nrsfm_ros.mapper.Mapper` solves the closed windows.
 
-The node's ``mapping: process``. The parent keeps the tracking (:class:`~grass_nrsfm_ros.live.
-LivePipeline`, its own SlidingWindow deciding when windows close) and all publishing; the
-child (a 'spawn' process: never a fork of a process with rclpy's threads) holds a second
-SlidingWindow for the solve side (previous solution, warm start, alignment) and its own copy of
-the frames, so a window crosses as stamps, not as 60 MB of pixels. Pure Python: no ROS import.
+One small interface: ``feed(frame)`` (every accepted Frame, in order), ``submit(window)``,
+``updates()`` (the Updates ready, in order; never blocks), ``reset()``, ``close()``;
+``notify`` (given at construction) is called whenever updates are ready.
 
-Parent -> child (one multiprocessing Queue: its feeder thread pickles and writes, the tracking
-thread only appends), in order:
+* :class:`InlineBackend` solves each window in ``submit``, before the next frame: the output
+  equals for the same input whoever runs it (the offline tools, the node with ``mapping:
+  inline``).
+* :class:`ProcessBackend` (the node's default, ``mapping: process``, docs/decisions/0410)
+  holds the mapper in a child process ('spawn': never a fork of a process with rclpy's
+  threads) at a lower CPU priority. Frames cross as they are accepted (a multiprocessing Queue:
+  its feeder thread pickles, the tracking thread only appends), windows as stamps; the child
+  keeps the frames a later window can still name and solves only the newest window waiting (a
+  newer one replaces it: 'dropped', 'skipped'). Updates come back through a pipe read by a
+  receiver thread. A child that dies is reported (``on_exit``) and restarted with an empty
+  store: windows naming frames it lacks fail with a clear message until new frames fill it.
 
-* ``('frame', sequence, Frame)``: every accepted frame (``ids: (P,)``, ``uv: (P, 2)``);
-* ``('depth', sequence, stamp, z)``: the depth ``z: (P,)`` published for that frame before a
-  model exists (bootstrap, or after a restart): the next model is flipped to agree with it;
-* ``('window', WindowSpec)``: a closed window, its frames and context named by stamp;
-* ``('reset',)``, ``('stop',)``.
-
-Child -> parent (a pipe, read by the parent's receiver thread), one message per window:
-``('solved', spec, results, model, figures)``, ``('failed', spec, kind, text)`` (kind
-'window': a WindowError; 'error': any other exception, with its traceback) or
-``('dropped', spec, why)`` (why 'skipped': a newer window replaced it while a solve ran;
-'reset'). The child keeps the frames a later window can still name (its frames and context,
-and every newer frame) and solves only the newest window waiting, as the worker thread does.
-
-A child that dies is reported (``on_exit``) and restarted with an empty store: windows naming
-frames it lacks fail with a clear message until new frames fill it.
+Pure Python: no ROS import.
 """
+from collections import deque
 import ctypes
 from dataclasses import dataclass
 import multiprocessing
 from multiprocessing.connection import wait
 import os
 import threading
-import time
 import traceback
 
 from threadpoolctl import threadpool_limits
 
-from grass_nrsfm_ros.live import solve_figures, solve_window
-from grass_nrsfm_ros.pipeline import make_windows, Window, window_matrix, WindowError
+from grass_nrsfm_ros.mapper import make_mapper, Update, WindowError
+from grass_nrsfm_ros.windowing import Window
 
 START_METHOD = 'spawn'
 #: the child's niceness above the parent's: on a busy machine the scheduler serves the
@@ -48,6 +41,10 @@ STOP_GRACE_S = 1.0           # close() waits this long for the child, then termi
 #: glibc threshold, see :func:`fix_mmap_threshold`
 MMAP_THRESHOLD = 1 << 20
 M_MMAP_THRESHOLD = -3        # glibc's mallopt parameter
+
+
+class SolveCancelled(Exception):
+    """Raised in a solve's progress callback once its backend is stopping."""
 
 
 def fix_mmap_threshold(size=MMAP_THRESHOLD):
@@ -61,32 +58,74 @@ def fix_mmap_threshold(size=MMAP_THRESHOLD):
         return False
 
 
-class SolveCancelled(Exception):
-    """Raised in the child's progress callback once the parent is stopping."""
+def solve_update(mapper, window, progress=None):
+    """``mapper.solve(window)`` as an Update: 'failed' for a WindowError or any other
+    exception (with its traceback: a solver failure must not stop the mapping), 'dropped'
+    ('stopping') when ``progress`` cancelled it."""
+    try:
+        return mapper.solve(window, progress=progress)
+    except SolveCancelled:
+        return Update.of(window, 'dropped', message='stopping')
+    except WindowError as exc:
+        return Update.of(window, 'failed', message=f'window not solved: {exc}')
+    except Exception as exc:
+        return Update.of(window, 'failed', message=(
+            f'window {window.index} failed: {type(exc).__name__}: {exc}\n'
+            f'{traceback.format_exc()}'))
+
+
+class InlineBackend:
+    """Solves each window as it is submitted (see the module docstring)."""
+
+    def __init__(self, mapper, notify=None):
+        self.mapper, self._notify = mapper, notify or (lambda: None)
+        self._updates = deque()
+        self._stopping = threading.Event()
+        self.outstanding, self.restarts = 0, 0
+
+    def feed(self, frame):
+        """Nothing to do: the windows carry their frames."""
+
+    def submit(self, window):
+        self._updates.append(solve_update(self.mapper, window, self._cancel_if_stopping))
+        self._notify()
+
+    def updates(self):
+        out = []
+        while self._updates:
+            out.append(self._updates.popleft())
+        return out
+
+    def reset(self):
+        self.mapper.reset()
+
+    def close(self):
+        self._stopping.set()
+
+    def _cancel_if_stopping(self, iteration, report):
+        if self._stopping.is_set():
+            raise SolveCancelled(f'stopping at iteration {iteration}')
 
 
 @dataclass(frozen=True)
 class WindowSpec:
-    """A closed Window without its pixels: ``stamps: (F,)`` of its frames, ``ids: (P,)`` its
-    common tracks, ``context_stamps`` the stamps of its context Frames (oldest first)."""
+    """A closed Window without its frames, which the child has: stamps of its frames
+    (``stamps: (F,)``) and of its context (oldest first), its common ``ids: (P,)``."""
 
     sequence: int
     index: int
-    stamps: object
-    frame_ids: tuple
+    stamps: tuple
     ids: object
     closed_at: float
     context_stamps: tuple
+    fresh: tuple = ()
     final: bool = False
 
     @classmethod
     def of(cls, window):
-        return cls(window.sequence, window.index, window.stamps, window.frame_ids, window.ids,
-                   window.closed_at, tuple(f.stamp_ns for f in window.context), window.final)
-
-    @property
-    def n_frames(self):
-        return len(self.stamps)
+        return cls(window.sequence, window.index, tuple(int(s) for s in window.stamps),
+                   window.ids, window.closed_at, tuple(f.stamp_ns for f in window.context),
+                   window.fresh, window.final)
 
 
 class FrameStore:
@@ -97,25 +136,25 @@ class FrameStore:
     def __init__(self):
         self.frames = {}
 
-    def add(self, sequence, frame):
-        self.frames[(sequence, frame.stamp_ns)] = frame
+    def add(self, frame):
+        self.frames[(frame.sequence, frame.stamp_ns)] = frame
 
     def window(self, spec):
         """The Window ``spec`` names (context frames missing from the store left out); raises
         WindowError if one of its own frames is missing."""
-        missing = [s for s in spec.stamps if (spec.sequence, int(s)) not in self.frames]
+        missing = [s for s in spec.stamps if (spec.sequence, s) not in self.frames]
         if missing:
-            raise WindowError(f'window {spec.index}: {len(missing)} of its {spec.n_frames} '
+            raise WindowError(f'window {spec.index}: {len(missing)} of its {len(spec.stamps)} '
                               'frames are missing in the mapping process (restarted since)')
-        frames = [self.frames[(spec.sequence, int(s))] for s in spec.stamps]
+        frames = tuple(self.frames[(spec.sequence, s)] for s in spec.stamps)
         context = tuple(self.frames[(spec.sequence, s)] for s in spec.context_stamps
                         if (spec.sequence, s) in self.frames)
-        return Window(spec.sequence, spec.index, spec.stamps, spec.frame_ids, spec.ids,
-                      window_matrix(frames, spec.ids), spec.closed_at, context, spec.final)
+        return Window(spec.sequence, spec.index, frames, spec.ids, spec.closed_at, context,
+                      spec.fresh, spec.final)
 
     def prune(self, spec):
         """Drop the frames no window after ``spec`` can name."""
-        first = int(spec.stamps[0])
+        first = spec.stamps[0]
         keep = {(spec.sequence, s) for s in spec.context_stamps}
         self.frames = {k: f for k, f in self.frames.items()
                        if k[0] > spec.sequence or (k[0] == spec.sequence and k[1] >= first)
@@ -126,15 +165,12 @@ class FrameStore:
 
 
 class _Child:
-    """The child's state: the store, the window waiting, published depths; a reader thread
-    fills them from ``inbox``, the main thread solves (see :func:`child_main`)."""
+    """The child's state: the store and the window waiting, filled by a reader thread from
+    ``inbox``; the main thread solves (see :func:`child_main`)."""
 
-    def __init__(self, windows, output, inbox, outbox, cancel):
-        self.windows, self.output = windows, output
-        self.inbox, self.outbox, self.cancel = inbox, outbox, cancel
+    def __init__(self, mapper, inbox, outbox, cancel):
+        self.mapper, self.inbox, self.outbox, self.cancel = mapper, inbox, outbox, cancel
         self.store = FrameStore()
-        self.depths = {}                # (sequence, stamp) -> z published before a model
-        self.modelled = set()           # sequences this child has given a model
         self.pending, self.stopping, self.reset_due = None, False, False
         self.cond = threading.Condition()
         self.send_lock = threading.Lock()
@@ -150,10 +186,7 @@ class _Child:
             kind = message[0]
             with self.cond:
                 if kind == 'frame':
-                    self.store.add(message[1], message[2])
-                elif kind == 'depth':
-                    if message[1] not in self.modelled:
-                        self.depths[(message[1], message[2])] = message[3]
+                    self.store.add(message[1])
                 elif kind == 'window':
                     self._take_window(message[1])
                 elif kind == 'reset':
@@ -166,16 +199,15 @@ class _Child:
 
     def _take_window(self, spec):
         self.store.prune(spec)
-        self.depths = {k: z for k, z in self.depths.items() if k in self.store.frames}
         if self.pending is not None:
-            self.send(('dropped', self.pending, 'skipped'))
+            self.send(Update.of(self.pending, 'dropped', message='skipped'))
         self.pending = spec
 
     def _reset(self):
         self.store.clear()
-        self.depths, self.reset_due = {}, True
+        self.reset_due = True
         if self.pending is not None:
-            self.send(('dropped', self.pending, 'reset'))
+            self.send(Update.of(self.pending, 'dropped', message='reset'))
             self.pending = None
 
     def run(self):
@@ -187,52 +219,29 @@ class _Child:
                     return
                 spec, self.pending = self.pending, None
                 if self.reset_due:
-                    self.windows.reset()
+                    self.mapper.reset()
                     self.reset_due = False
                 try:
                     window = self.store.window(spec)
                 except WindowError as exc:
-                    self.send(('failed', spec, 'window', str(exc)))
+                    self.send(Update.of(spec, 'failed', message=f'window not solved: {exc}'))
                     continue
-                published = {s: (self.store.frames[(seq, s)].ids, z)
-                             for (seq, s), z in self.depths.items() if seq == spec.sequence}
-            self.send(self._solve(spec, window, published))
-
-    def _solve(self, spec, window, published):
-        started, released = time.monotonic(), self.windows.releases(window)
-        try:
-            results, model = solve_window(self.windows, window, self.output, published,
-                                          progress=self._cancel_if_stopping)
-        except SolveCancelled:
-            return ('dropped', spec, 'stopping')
-        except WindowError as exc:
-            return ('failed', spec, 'window', str(exc))
-        except Exception as exc:                      # a solver failure must not stop the child
-            return ('failed', spec, 'error', f'{type(exc).__name__}: {exc}\n'
-                    f'{traceback.format_exc()}')
-        if model is not None:
-            with self.cond:
-                self.modelled.add(spec.sequence)
-                self.depths = {k: z for k, z in self.depths.items() if k[0] != spec.sequence}
-        figures = None if released else solve_figures(self.windows.previous,
-                                                      time.monotonic() - started)
-        return ('solved', spec, tuple(results), model, figures)
+            self.send(solve_update(self.mapper, window, self._cancel_if_stopping))
 
     def _cancel_if_stopping(self, iteration, report):
         if self.cancel.is_set():
             raise SolveCancelled(f'stopping at iteration {iteration}')
 
 
-def child_main(config, solver_factory, warm_start_class, output, inbox, outbox, cancel,
-               blas_threads, nice=MAPPING_NICE):
-    """The child process: a SlidingWindow like the parent's, fed by ``inbox``; results to
-    ``outbox`` (a Connection). Exits on 'stop' or when the parent dies."""
+def child_main(config, solver_factory, inbox, outbox, cancel, blas_threads,
+               nice=MAPPING_NICE):
+    """The child process: a mapper fed by ``inbox``; Updates to ``outbox`` (a Connection).
+    Exits on 'stop' or when the parent dies."""
     if nice:
         os.nice(nice)
     fix_mmap_threshold()
     threadpool_limits(limits=blas_threads)
-    windows = make_windows(config, solver_factory, warm_start_class=warm_start_class)
-    child = _Child(windows, output, inbox, outbox, cancel)
+    child = _Child(make_mapper(config, solver_factory), inbox, outbox, cancel)
     threading.Thread(target=_exit_with_parent, daemon=True).start()
     threading.Thread(target=child.read, daemon=True).start()
     child.send(('ready', os.getpid()))
@@ -245,26 +254,24 @@ def _exit_with_parent():
     os._exit(3)
 
 
-class MappingProcess:
-    """The parent's handle on the mapping child; see the module docstring.
+class ProcessBackend:
+    """The mapper in a child process; see the module docstring.
 
-    ``on_message(message)`` is called on the receiver thread for each message from the child
-    (``'solved'``, ``'failed'``, ``'dropped'``); ``on_exit(exitcode, restarted)`` when the
-    child died unasked (it is restarted, at most ``max_restarts`` times); ``nice``: the child's
-    niceness increment (MAPPING_NICE). ``config``, ``solver_factory`` and
-    ``warm_start_class`` are those of :func:`grass_nrsfm_ros.pipeline.make_windows` and
-    must pickle (module-level classes).
+    ``config`` and ``solver_factory`` are those of :func:`grass_nrsfm_ros.mapper.make_mapper`
+    and must pickle (module-level classes). ``notify()`` is called on the receiver thread when
+    an Update arrived; ``on_exit(exitcode, restarted)`` when the child died unasked (it is
+    restarted, at most ``max_restarts`` times); ``nice``: the child's niceness increment.
     """
 
-    def __init__(self, config, solver_factory=None, warm_start_class=None, *, output='live',
-                 on_message=None, on_exit=None, blas_threads=1, max_restarts=5,
-                 nice=MAPPING_NICE):
-        self._args = (dict(config), solver_factory, warm_start_class, output)
+    def __init__(self, config, solver_factory=None, *, notify=None, on_exit=None,
+                 blas_threads=1, max_restarts=5, nice=MAPPING_NICE):
+        self._args = (dict(config), solver_factory)
         self._blas_threads, self._nice = int(blas_threads), int(nice)
-        self._on_message = on_message or (lambda message: None)
+        self._notify = notify or (lambda: None)
         self._on_exit = on_exit or (lambda code, restarted: None)
         self._ctx = multiprocessing.get_context(START_METHOD)
         self._lock = threading.Lock()
+        self._updates = deque()
         self._closing = False
         self.outstanding = 0            # windows submitted, not yet answered
         self.restarts, self.max_restarts = 0, int(max_restarts)
@@ -291,12 +298,9 @@ class MappingProcess:
         return self.process is not None and self.process.is_alive()
 
     # -- tracking thread ------------------------------------------------------------------------
-    def add_frame(self, sequence, frame, depth=None):
-        """Hand one accepted Frame of ``sequence`` over (and ``depth: (P,)`` published for it
-        before a model, if any); returns at once."""
-        self._put(('frame', sequence, frame))
-        if depth is not None:
-            self._put(('depth', sequence, frame.stamp_ns, depth))
+    def feed(self, frame):
+        """Hand one accepted Frame over; returns at once."""
+        self._put(('frame', frame))
 
     def submit(self, window):
         """Hand a closed Window over (as a WindowSpec: the child has its frames)."""
@@ -304,11 +308,14 @@ class MappingProcess:
             self.outstanding += 1
         self._put(('window', WindowSpec.of(window)))
 
+    def updates(self):
+        with self._lock:
+            out, self._updates = list(self._updates), deque()
+        return out
+
     def reset(self):
-        """Drop the child's frames and the window waiting (a solve running finishes); returns
-        the windows then outstanding."""
+        """Drop the child's frames and the window waiting (a solve running finishes)."""
         self._put(('reset',))
-        return self.outstanding
 
     def _put(self, message):
         if not self._closing and self.process is not None:
@@ -333,13 +340,14 @@ class MappingProcess:
             return
 
     def _handle(self, message):
-        if message[0] == 'ready':
+        if isinstance(message, tuple) and message[0] == 'ready':
             self.pid = message[1]
             return
         with self._lock:
             self.outstanding = max(0, self.outstanding - 1)
+            self._updates.append(message)
         try:
-            self._on_message(message)
+            self._notify()
         except Exception:                   # the receiver must go on (the node tearing down)
             if not self._closing:
                 traceback.print_exc()

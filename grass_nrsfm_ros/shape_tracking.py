@@ -1,0 +1,222 @@
+"""Shape tracking (the tracking thread): every frame fitted on arrival to the newest model.
+
+:class:`ShapeTracking` fits each accepted Frame to the newest
+:class:`~grass_nrsfm_ros.nrsfm.tracking.ShapeModel` the mapping offered (its rotation and mode
+coefficients, :class:`~grass_nrsfm_ros.nrsfm.tracking.Tracker`). Before a sequence's first
+model, frames are tracked against a rigid bootstrap model of the frames so far
+(:func:`bootstrap_model`), flat while that is ill-posed. A frame whose residual exceeds
+``residual_limit`` times the median of the last frames' is *surprising*: the caller closes the
+next window early (once per model). Pure Python and numpy: no ROS.
+
+Shapes: ``ids: (P,)`` track ids, ``uv: (P, 2)`` pixels, ``xyz: (P, 3)`` camera frame in
+pixels (x, y the frame's centred u, v; z the depth).
+"""
+from collections import deque
+from dataclasses import dataclass
+import threading
+
+import numpy as np
+
+from grass_nrsfm_ros.mapper import FrameResult
+from grass_nrsfm_ros.nrsfm.measurement import centre, InvalidInputError
+from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation, rigid_world_shape
+from grass_nrsfm_ros.nrsfm.tracking import fit_subset, rigid_model, Tracker
+from grass_nrsfm_ros.windowing import common_ids, window_matrix
+
+#: a bootstrap model is rebuilt from the frames so far when their count reaches each of these
+BOOTSTRAP_AT = (3, 6, 12, 24, 48)
+#: a bootstrap model whose depth spread exceeds this many times its x, y spread is ill-posed
+#: (too little rotation): the frames are tracked as flat instead
+BOOTSTRAP_DEPTH_LIMIT = 1.0
+#: tracked frames whose median residual a new frame's is compared with
+RESIDUAL_BASELINE = 30
+
+
+@dataclass(frozen=True)
+class Tracked:
+    """One tracked frame: its ``result``; ``surprising`` (see the module docstring);
+    ``depth``: ``(ids, z)`` when the frame was tracked before its sequence's model (the first
+    model takes this orientation), else None."""
+
+    result: FrameResult
+    surprising: bool = False
+    depth: tuple = None
+
+
+def bootstrap_model(frames):
+    """A rank-0 ShapeModel from the rigid factorisation of ``frames`` (Frames of one
+    sequence, oldest first, on their common tracks), or None when too few frames or the
+    depth is ill-posed (spread beyond BOOTSTRAP_DEPTH_LIMIT times the image spread). The
+    rotations and the depth check come from at most FIT_TRACKS of the tracks, the shape of
+    every track from those rotations."""
+    ids = frames[0].ids
+    for f in frames[1:]:
+        ids = common_ids(ids, f.ids)
+    if len(frames) < BOOTSTRAP_AT[0] or ids.size < 4:
+        return None
+    W, _ = centre(window_matrix(frames, ids))
+    try:
+        R, S = rigid_factorisation(W[:, fit_subset(ids.size)])
+    except (InvalidInputError, np.linalg.LinAlgError):     # no spread, degenerate frames
+        return None
+    Sf = S.reshape(len(frames), 3, -1)
+    spread = Sf - Sf.mean(axis=2, keepdims=True)
+    depth, image = np.std(spread[:, 2]), np.std(spread[:, :2])
+    if not np.isfinite(depth) or depth > BOOTSTRAP_DEPTH_LIMIT * image:
+        return None
+    stamps = np.array([f.stamp_ns for f in frames], dtype=np.int64)
+    return rigid_model(rigid_world_shape(R, W), R, ids, stamps)
+
+
+class ShapeTracking:
+    """See the module docstring. :meth:`track` on the tracking thread; :meth:`offer` (a new
+    model) from any thread.
+
+    ``stats``: frames ``tracked``, ``bootstrap_frames``, ``fresh_windows`` (surprising frames),
+    ``models`` taken, ``first_model_after`` (frames of the sequence before its first model),
+    ``tracking_failed`` (published flat); ``last``: the newest frame's residual, model age and
+    rank, and whether it was a bootstrap frame.
+    """
+
+    def __init__(self, residual_limit=3.0):
+        if not residual_limit > 1.0:
+            raise ValueError(f'residual_limit={residual_limit}: must be > 1')
+        self.residual_limit = float(residual_limit)
+        self._tracker = None
+        self._residuals = deque(maxlen=RESIDUAL_BASELINE)   # of the last tracked frames
+        self._requested = False         # a fresh window asked for since the current model
+        self._bootstrap = []            # Frames of the sequence while it has no model
+        self._bootstrap_seen = 0        # frames tracked since then (_bootstrap stops growing)
+        self._realigning = False        # the mapping lost its state: keep depths until a model
+        self._waiting = None            # (sequence, ShapeModel) for the next frame
+        self._sequence = None
+        self._lock = threading.Lock()
+        self.last = dict(residual=None, model_age=None, model_rank=None, bootstrap=None)
+        self.stats = dict(tracked=0, bootstrap_frames=0, fresh_windows=0, models=0,
+                          first_model_after=None, tracking_failed=0)
+
+    @property
+    def has_model(self):
+        """True once the current sequence is tracked against a solved window's model."""
+        return self._tracker is not None and not self._bootstrap
+
+    def offer(self, sequence, model):
+        """The mapping's newest ``model`` of ``sequence``: the next frame of that sequence is
+        tracked against it."""
+        with self._lock:
+            self._waiting = (sequence, model)
+        self.stats['models'] += 1
+
+    def realign(self):
+        """The mapping lost its state (a restarted mapping process): until its next model,
+        tracked frames carry their depth, so that model keeps the published orientation."""
+        self._realigning = True
+
+    def reset(self):
+        """Forget the model, the one waiting and the bootstrap (a new sequence); True if
+        there was a model (or a bootstrap one)."""
+        with self._lock:
+            had_model = self._tracker is not None or self._waiting is not None
+            self._waiting = None
+        self._forget_model()
+        self._realigning = False
+        return had_model
+
+    def track(self, frame):
+        """The :class:`Tracked` ``frame`` (a windowing Frame)."""
+        if frame.sequence != self._sequence:
+            self._sequence = frame.sequence
+            self._forget_model()
+        self._take_model()
+        self.stats['tracked'] += 1
+        if not self.has_model:
+            return self._track_bootstrap(frame)
+        tracked = self._fit(frame)
+        if tracked is None:
+            return Tracked(self._flat(frame))
+        self.last.update(residual=tracked.residual, model_rank=self._tracker.model.rank,
+                         model_age=self._tracker.age, bootstrap=False)
+        surprising = self._surprising(tracked.residual)
+        if surprising:
+            self.stats['fresh_windows'] += 1
+            self._requested = True
+        self._residuals.append(tracked.residual)
+        depth = (tracked.ids, tracked.xyz[:, 2]) if self._realigning else None
+        return Tracked(self._result(frame, tracked.ids, tracked.xyz), surprising, depth)
+
+    # -- internals ------------------------------------------------------------------------------
+    def _take_model(self):
+        """Swap the tracker to the model the mapping left, if one of this sequence waits."""
+        with self._lock:
+            waiting, self._waiting = self._waiting, None
+        if waiting is None or waiting[0] != self._sequence:
+            return
+        _, model = waiting
+        self._requested, self._realigning = False, False
+        if self.has_model:
+            self._tracker.swap(model)
+            return
+        if self.stats['first_model_after'] is None:
+            self.stats['first_model_after'] = self._bootstrap_seen
+        self._tracker = Tracker(model)
+        self._bootstrap, self._bootstrap_seen = [], 0
+
+    def _forget_model(self):
+        self._tracker, self._bootstrap, self._bootstrap_seen = None, [], 0
+        self._residuals.clear()
+
+    def _surprising(self, residual):
+        """True if ``residual`` exceeds ``residual_limit`` times the median of the last
+        RESIDUAL_BASELINE tracked frames', and no fresh window has been asked for since the
+        current model arrived."""
+        if self._requested or len(self._residuals) < RESIDUAL_BASELINE:
+            return False
+        return residual > self.residual_limit * max(float(np.median(self._residuals)), 1e-9)
+
+    def _track_bootstrap(self, frame):
+        """Before the first model: track against a rigid model of the frames so far (rebuilt
+        at BOOTSTRAP_AT frame counts), flat while that is ill-posed."""
+        self.stats['bootstrap_frames'] += 1
+        self._bootstrap_seen += 1
+        if len(self._bootstrap) < BOOTSTRAP_AT[-1]:         # later rebuilds use no more
+            self._bootstrap.append(frame)
+        if self._bootstrap_seen in BOOTSTRAP_AT:
+            model = bootstrap_model(self._bootstrap)
+            if model is not None:
+                self._tracker = Tracker(model)
+        tracked = None if self._tracker is None else self._fit(frame)
+        if tracked is None:
+            return Tracked(self._flat(frame))
+        self.last.update(residual=tracked.residual, model_age=self._tracker.age,
+                         model_rank=0, bootstrap=True)
+        return Tracked(self._result(frame, tracked.ids, tracked.xyz),
+                       depth=(tracked.ids, tracked.xyz[:, 2]))
+
+    def _fit(self, frame):
+        """The tracker's TrackedFrame of ``frame``, or None (counted) where the fit fails or
+        is not finite (degenerate frames: coincident or collinear tracks)."""
+        centred = frame.uv - frame.uv.mean(axis=0)
+        if np.sqrt(np.mean(centred ** 2)) <= 1e-9 * (1.0 + np.abs(frame.uv).max()):
+            self.stats['tracking_failed'] += 1                 # no spread: nothing to fit
+            return None
+        with np.errstate(all='ignore'):
+            try:
+                tracked = self._tracker.track(frame.stamp_ns, frame.ids, frame.uv)
+            except np.linalg.LinAlgError:
+                tracked = None
+        if tracked is None or not (np.isfinite(tracked.xyz).all()
+                                   and np.isfinite(tracked.residual)):
+            self.stats['tracking_failed'] += 1
+            return None
+        return tracked
+
+    def _flat(self, frame):
+        """``frame`` with no depth (z = 0): before any model, or where tracking failed."""
+        xyz = np.column_stack([frame.uv - frame.uv.mean(axis=0), np.zeros(frame.ids.size)])
+        self.last.update(residual=None, model_age=None, model_rank=None,
+                         bootstrap=not self.has_model)
+        return self._result(frame, frame.ids, xyz)
+
+    @staticmethod
+    def _result(frame, ids, xyz):
+        return FrameResult(frame.stamp_ns, frame.frame_id, ids, xyz)
