@@ -16,10 +16,9 @@ from grass_nrsfm_ros.nrsfm import GrassmannNRSfM
 from grass_nrsfm_ros.nrsfm.metrics import e3d, e3d_akhter, rotation_error
 from grass_nrsfm_ros.nrsfm.problem import WarmStart
 from grass_nrsfm_ros.nrsfm.rotation import estimate_rotations
-from grass_nrsfm_ros.nrsfm.rotation_averaging import (average_within, op_rotations, op_samples,
-                                                      so3_log)
 from grass_nrsfm_ros.nrsfm.synthetic import make_sequence
 from . import common
+from .op_rotations import average_within, op_rotations, op_samples, so3_log
 
 #: OP Tab. 2 (Akhter metric): R-BMM and OP
 PUBLISHED_OP = {'drink': (0.0119, 0.0071), 'pickup': (0.0198, 0.0152),

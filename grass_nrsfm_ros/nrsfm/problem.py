@@ -18,7 +18,7 @@ class WarmStart:
 
     ``R: (F, 3, 3)`` rotations, ``S: (3F, P)`` camera-frame shapes (any translation, same units
     as W), ``known: (F,)`` bool frames whose R and S are given (default: all), ``groups: (P,)``
-    spatial labels, ``rotation_method``: 'dai', 'op' or 'rigid', how rotations that are not
+    spatial labels, ``rotation_method``: 'dai' or 'rigid', how rotations that are not
     given are estimated (None: the solver's ``rotations`` parameter; a method given skips the
     'auto' check, e.g. one a previous solve of overlapping frames chose). ``resumed``: the
     shapes resume a previous window's solution, so the solve runs as a cold one from them (the
@@ -56,7 +56,7 @@ class SolverReport:
     reprojection_rms: float = float('nan')       # RMS of W - RS in W's units
     reprojection_relative: float = float('nan')  # the same over the RMS of centred W
     warm_started_frames: int = 0
-    rotation_method: str = None                  # 'dai', 'op', 'rigid' or 'given' (init.R)
+    rotation_method: str = None                  # 'dai', 'rigid' or 'given' (init.R)
     rotation_checked: bool = False               # the 'auto' check chose rotation_method
     inextensible: bool = False                   # inextensible depths replaced the solver's
     rotations_registered: bool = False           # R re-estimated from the refined shapes, kept
@@ -172,8 +172,8 @@ def check_init(init, F, P):
         raise InvalidInputError('init.resumed needs init.S and init.R given for every frame')
     if (init.R is not None or init.S is not None) and not known.any():
         raise InvalidInputError('init.known marks no frame as known')
-    if init.rotation_method not in (None, 'dai', 'op', 'rigid'):
-        raise InvalidInputError("init.rotation_method must be None, 'dai', 'op' or 'rigid'; got "
+    if init.rotation_method not in (None, 'dai', 'rigid'):
+        raise InvalidInputError("init.rotation_method must be None, 'dai' or 'rigid'; got "
                                 f'{init.rotation_method!r}')
     return known, groups
 

@@ -148,10 +148,8 @@ SOLVER_PARAMS = (
     _number('lambda3', 0.1, 'Nuclear-norm weight on the spatial coefficients C_s.'),
     _number('lambda4', 0.1, 'Nuclear-norm weight on the temporal coefficients C_t.'),
     _auto_or_count('K_rot', "Rank used by the rotation step ('auto': chosen from the data)."),
-    _mode('rotations', 'auto', ('auto', 'dai', 'op', 'rigid'),
-          "Rotation estimate in cold solves: 'dai' (Dai et al. 2014), 'op' (Dai's averaged per "
-          "frame with the corrective matrix's other triplets, Kumar & Van Gool 2022), 'rigid' "
-          '(Tomasi-Kanade), '
+    _mode('rotations', 'auto', ('auto', 'dai', 'rigid'),
+          "Rotation estimate in cold solves: 'dai' (Dai et al. 2014), 'rigid' (Tomasi-Kanade), "
           "or 'auto': Dai's unless the rigid rotations give shapes whose S# nuclear norm is "
           f'{100 * ROTATION_MARGIN:.0f} % lower.'),
     _auto_or_count('K_s', "Number of spatial groups (trajectory subspaces); 'auto': from P."),

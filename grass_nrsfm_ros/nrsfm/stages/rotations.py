@@ -1,15 +1,13 @@
 """Stage 'rotations': the rotations ``R: (F, 3, 3)`` of a problem, given or estimated.
 
 Given for every frame (``init.R`` with all frames known): used as they are. Otherwise estimated
-from ``Wn: (2F, P)`` by Dai et al.'s method ('dai', and 'auto' before the rotation check),
-Organic Priors' per-frame average of Dai's and the corrective matrix's other triplets ('op') or
+from ``Wn: (2F, P)`` by Dai et al.'s method ('dai', and 'auto' before the rotation check) or
 the rigid factorisation ('rigid'), then aligned to the given ones on the known frames.
-Report: ``rotation_method`` ('given', 'dai', 'op' or 'rigid'), ``K_rot`` (Dai's rank or None).
+Report: ``rotation_method`` ('given', 'dai' or 'rigid'), ``K_rot`` (Dai's rank or None).
 """
 import numpy as np
 
 from ..rotation import align_rotations, estimate_rotations, rigid_factorisation
-from ..rotation_averaging import op_rotations
 
 NAME = 'rotations'
 
@@ -36,11 +34,9 @@ def run(problem, params, report):
     if asked == 'rigid':
         R, K = rigid_factorisation(problem.Wn)[0], None
     else:
-        estimate = op_rotations if asked == 'op' else estimate_rotations
-        est = estimate(problem.Wn, K=params['K_rot'])
+        est = estimate_rotations(problem.Wn, K=params['K_rot'])
         R, K = np.array(est.R, dtype=np.float64), est.K
-    named = 'op' if asked == 'op' else 'dai'
-    report.rotation_method, report.K_rot = (named if K is not None else 'rigid'), K
+    report.rotation_method, report.K_rot = ('dai' if K is not None else 'rigid'), K
     if init.R is None:
         return R
     return align_rotations(R, np.asarray(init.R, dtype=np.float64), known)

@@ -1,5 +1,7 @@
 """Organic Priors' rotations (Kumar & Van Gool, ECCV 2022): Dai's rotation averaged per frame
-with the rotations of the other column triplets of the corrective matrix.
+with the rotations of the other column triplets of the corrective matrix. A research variant
+kept for ``python -m bench.rotations`` only: it measured no better than Dai's rotations
+(docs/decisions/archive/0500), so the solver no longer offers it (docs/decisions/0430).
 
 * :func:`triplet_candidates`: at Dai's rank K, a full-rank PSD point ``Q`` of the null space of
   the orthonormality constraints, its 3K x 3K factor ``G = [G^1 ... G^K]`` (eigenvectors of Q,
@@ -10,17 +12,19 @@ with the rotations of the other column triplets of the corrective matrix.
 * :func:`l1_average`: the per-frame L1 rotation average (Weiszfeld in the tangent space, from
   the projected entry-wise median) of ``samples: (F, n, 3, 3)`` with ``mask: (F, n)``.
 * :func:`op_samples`, :func:`average_within`: the samples of a reference, their filter and
-  average; :func:`op_rotations`: the whole method, a :class:`~.rotation.RotationEstimate`.
+  average; :func:`op_rotations`: the whole method, a ``RotationEstimate``.
 
-Rotations are ``(..., 3, 3)`` world to camera, as in :mod:`.rotation`. The constants are OP's:
-filter radius ``DELTA`` (chordal, to the reference), ``SRA_ITERATIONS``, ``SRA_TOL``.
+Rotations are ``(..., 3, 3)`` world to camera, as in :mod:`grass_nrsfm_ros.nrsfm.rotation`. The
+constants are OP's: filter radius ``DELTA`` (chordal, to the reference), ``SRA_ITERATIONS``,
+``SRA_TOL``.
 """
 import numpy as np
 
-from .measurement import nearest_rotation
-from .rotation import (_constraint_matrix, _motion_factor, _null_space, _numerical_rank,
-                       _refine, _rotations_from_triple, _smat, _svec, estimate_rotations,
-                       normalised_svd, RotationEstimate)
+from grass_nrsfm_ros.nrsfm.measurement import nearest_rotation
+from grass_nrsfm_ros.nrsfm.rotation import (_constraint_matrix, _motion_factor, _null_space,
+                                            _numerical_rank, _refine, _rotations_from_triple,
+                                            _smat, _svec, estimate_rotations, normalised_svd,
+                                            RotationEstimate)
 
 #: OP's filter: a candidate is kept in a frame where its chordal distance to the reference is
 #: below this
@@ -204,7 +208,7 @@ def l1_average(samples, mask, *, iterations=SRA_ITERATIONS, tol=SRA_TOL):
 
 def op_samples(W, reference, *, _svd=None):
     """The per-frame samples of OP's average for ``W: (2F, P)`` and Dai's ``reference``
-    (a :class:`~.rotation.RotationEstimate`): ``(samples: (F, 1 + n, 3, 3)`` with the reference
+    (a ``RotationEstimate``): ``(samples: (F, 1 + n, 3, 3)`` with the reference
     first, ``info`` dict of the candidates' refinement and registration residuals``)``."""
     cand, refine_res = triplet_candidates(W, reference.K, _svd=_svd)
     registered, reg_res = register_candidates(reference.R, cand)
@@ -225,11 +229,11 @@ def average_within(samples, delta=DELTA):
 def op_rotations(W, K='auto', *, candidates=None, random_state=0, delta=DELTA):
     """Organic Priors' rotations of ``W: (2F, P)`` (any translation).
 
-    The reference is Dai's rotation (:func:`~.rotation.estimate_rotations`, its K chosen from
+    The reference is Dai's rotation (``estimate_rotations``, its K chosen from
     the data or given); the K triplet candidates at that K (:func:`triplet_candidates`) are
     registered to it (:func:`register_candidates`), kept per frame within chordal ``delta`` of
     it, and averaged with it per frame (:func:`l1_average`). Falls back to the reference where
-    Dai's step fell back or K = 1. Returns a :class:`~.rotation.RotationEstimate` whose
+    Dai's step fell back or K = 1. Returns a ``RotationEstimate`` whose
     ``scores['op']`` holds the candidates' residuals, the share of samples kept and the
     Weiszfeld iterations.
     """
