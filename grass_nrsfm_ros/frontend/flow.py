@@ -209,7 +209,7 @@ class DenseTracker:
         if self._dis is not None:
             init = self._flow if self._flow is not None else None
             self._flow = self._dis.calc(self._ref, grey, None if init is None else init.copy())
-            guess = self._uv_ref + _sample(self._flow, self._uv_ref)
+            guess = self._uv_ref + sample(self._flow, self._uv_ref)
         ok = np.ones(len(guess), bool)
         if self._refine:
             dense = guess
@@ -234,7 +234,7 @@ class DenseTracker:
         points = uv.astype(np.float32)
         if self._dis is not None:
             back = self._dis.calc(grey, self._ref, None)
-            guess = points + _sample(back, points)
+            guess = points + sample(back, points)
         else:
             guess = self._uv_ref.copy()
         if self._refine:
@@ -391,12 +391,18 @@ def _validate_K(K):
     return K
 
 
-def _sample(image, points):
-    """Bilinear samples ``(P, C)`` of ``image (H, W, C)`` float32 at ``points (P, 2)``."""
-    pts = points.astype(np.float32).reshape(-1, 1, 2)
-    out = cv2.remap(image, pts[..., 0], pts[..., 1], cv2.INTER_LINEAR,
+def sample(image, points, interpolation=cv2.INTER_LINEAR):
+    """Samples ``(N, C)`` float32 of ``image (H, W[, C])`` at float ``points (N, 2)`` (u, v),
+    bilinear by default, edges replicated (any N: OpenCV's remap takes under 2^15 rows)."""
+    n = len(points)
+    width = 1024
+    rows = max(-(-n // width), 1)
+    where = np.zeros((rows * width, 2), np.float32)
+    where[:n] = points
+    where = where.reshape(rows, width, 2)
+    out = cv2.remap(image, where[..., 0], where[..., 1], interpolation,
                     borderMode=cv2.BORDER_REPLICATE)
-    return out.reshape(len(points), -1)
+    return out.reshape(rows * width, -1)[:n].astype(np.float32)
 
 
 _OFFSETS = np.stack(np.meshgrid(np.arange(-_PATCH_RADIUS, _PATCH_RADIUS + 1),
@@ -407,8 +413,7 @@ _OFFSETS = np.stack(np.meshgrid(np.arange(-_PATCH_RADIUS, _PATCH_RADIUS + 1),
 def _patches(grey, points):
     """``(P, n)`` float32 bilinear patches of ``grey`` around ``points (P, 2)``."""
     where = points.astype(np.float32)[:, None, :] + _OFFSETS[None]   # (P, n, 2)
-    return cv2.remap(grey, where[..., 0], where[..., 1], cv2.INTER_LINEAR,
-                     borderMode=cv2.BORDER_REPLICATE).astype(np.float32)
+    return sample(grey, where.reshape(-1, 2)).reshape(len(points), -1)
 
 
 def _patch_zncc(ref, ref_points, grey, points):
