@@ -25,6 +25,7 @@ import multiprocessing
 from multiprocessing.connection import wait
 import os
 import threading
+import time
 import traceback
 
 from threadpoolctl import threadpool_limits
@@ -36,6 +37,7 @@ START_METHOD = 'spawn'
 #: the child's niceness above the parent's: on a busy machine the scheduler serves the
 #: tracking (and the publishing) first, the mapping with what is left
 MAPPING_NICE = 5
+HANDOVERS_KEPT = 300        # hand-over times kept for /diagnostics
 STOP_GRACE_S = 1.0           # close() waits this long for the child, then terminates it
 #: allocations from this size on are mmapped (returned to the system when freed): a fixed
 #: glibc threshold, see :func:`fix_mmap_threshold`
@@ -276,6 +278,7 @@ class ProcessBackend:
         self.outstanding = 0            # windows submitted, not yet answered
         self.restarts, self.max_restarts = 0, int(max_restarts)
         self.pid = None                 # the child's, once it has started
+        self.handovers = deque(maxlen=HANDOVERS_KEPT)     # seconds per frame handed over
         self._start()
 
     def _start(self):
@@ -299,8 +302,10 @@ class ProcessBackend:
 
     # -- tracking thread ------------------------------------------------------------------------
     def feed(self, frame):
-        """Hand one accepted Frame over; returns at once."""
+        """Hand one accepted Frame over; returns at once (its time kept in ``handovers``)."""
+        started = time.perf_counter()
         self._put(('frame', frame))
+        self.handovers.append(time.perf_counter() - started)
 
     def submit(self, window):
         """Hand a closed Window over (as a WindowSpec: the child has its frames)."""

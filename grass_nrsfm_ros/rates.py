@@ -12,6 +12,7 @@ Times are seconds: ``now`` from a monotonic clock for rates, ROS time for stamp 
 from collections import deque
 import math
 import threading
+import time
 
 OK, WARN = 0, 1
 #: snapshots in the sliding window (diagnostic_updater's default window_size)
@@ -121,3 +122,35 @@ class TimeStampStatus:
                    ('Early diagnostic update count', f'{self._early:d}'),
                    ('Zero seen diagnostic update count', f'{self._zero_seen:d}')]
         return level, message, values
+
+
+class NodeRates:
+    """The reconstruction node's rates: input and output frequency and output stamp delay.
+    :meth:`snapshot` (once a second) takes every status at once; :meth:`statuses` gives the
+    last snapshot as ``(name, level, message, [(key, value), ...])``."""
+
+    def __init__(self, expected_hz, tolerance, now=None):
+        now = time.monotonic() if now is None else now
+        self.input = FrequencyStatus(expected_hz, tolerance, now=now)
+        self.output = FrequencyStatus(expected_hz, tolerance, now=now)
+        self.delay = TimeStampStatus()
+        self._last = []
+
+    def output_published(self, stamp, now):
+        """One output cloud of ``stamp`` published at ROS time ``now`` (seconds)."""
+        self.output.tick()
+        self.delay.tick(stamp, now)
+
+    def reset(self, now=None):
+        now = time.monotonic() if now is None else now
+        self.input.reset(now)
+        self.output.reset(now)
+
+    def snapshot(self, input_topic, output_topic, now=None):
+        now = time.monotonic() if now is None else now
+        self._last = [(f'{input_topic} input frequency', *self.input.status(now)),
+                      (f'{output_topic} output frequency', *self.output.status(now)),
+                      (f'{output_topic} output timestamp delay', *self.delay.status())]
+
+    def statuses(self):
+        return list(self._last)

@@ -95,15 +95,17 @@ class Refinement:
 
     def _fresh(self, sequence, stamps):
         """Indices of ``stamps`` (ascending, of ``sequence``) not published before; marks them
-        published and counts the frames this publication passed over as lost."""
+        published and counts the frames this publication passed over as lost (in an older
+        sequence, or before its newest frame but not among them: a skipped window's)."""
         done = self._published_until.get(sequence)
         fresh = [i for i, s in enumerate(stamps) if done is None or s > done]
         if not fresh:
             return []
-        newest, first = int(stamps[fresh[-1]]), int(stamps[fresh[0]])
+        newest = int(stamps[fresh[-1]])
+        going = {int(stamps[i]) for i in fresh}
         self._published_until[sequence] = newest
         while self._unpublished and self._unpublished[0] <= (sequence, newest):
             seq, stamp = self._unpublished.popleft()
-            if seq < sequence or stamp < first:
+            if seq < sequence or stamp not in going:
                 self.stats['frames_lost'] += 1
         return fresh

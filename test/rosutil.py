@@ -24,9 +24,9 @@ TEST_DIR = Path(__file__).resolve().parent
 #: the node's window_size, 30, as the README advises: with 10, a window's burst overwrote 3 of
 #: 105 clouds in this Python subscriber's history while both cores were busy)
 POINTS_DEPTH = 10
-RIGID_LAUNCH = ('import sys; from doubles import RigidALS, RigidWarmStart; '
+RIGID_LAUNCH = ('import sys; from doubles import RigidALS; '
                 'from grass_nrsfm_ros.node import main; '
-                'sys.exit(main(solver_factory=RigidALS, warm_start_class=RigidWarmStart))')
+                'sys.exit(main(solver_factory=RigidALS))')
 
 
 class Feeder:

@@ -28,9 +28,9 @@ REPO = Path(__file__).resolve().parents[1]
 FIGURES = {}
 T0 = 1_700_000_000_000_000_000
 PERIOD_NS = 33_333_333
-SLOW_LAUNCH = ('import sys; from doubles import RigidWarmStart, SlowSolver; '
+SLOW_LAUNCH = ('import sys; from doubles import SlowSolver; '
                'from grass_nrsfm_ros.node import main; '
-               'sys.exit(main(solver_factory=SlowSolver, warm_start_class=RigidWarmStart))')
+               'sys.exit(main(solver_factory=SlowSolver))')
 STUBBORN_LAUNCH = SLOW_LAUNCH.replace('SlowSolver', 'StubbornSolver')
 
 

@@ -26,7 +26,7 @@ from hypothesis import given, HealthCheck, settings, strategies as st
 import numpy as np
 import pytest
 
-from doubles import RigidALS, RigidWarmStart
+from doubles import RigidALS
 from grass_nrsfm_ros import cloud
 
 EXAMPLES = 300
@@ -316,7 +316,7 @@ def node_in_process():
     rclpy.init(context=context, args=['--ros-args', '-p', 'window_size:=1000',
                                       '-p', 'window_stride:=1000', '-p', 'min_tracks:=4',
                                       '--log-level', 'fatal'])
-    node = ReconstructionNode(RigidALS, RigidWarmStart, context=context)
+    node = ReconstructionNode(RigidALS, context=context)
     yield node
     node.close()
     node.destroy_node()

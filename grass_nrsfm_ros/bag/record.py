@@ -38,6 +38,7 @@ class Recorder:
         self.error = None
         self.dropped = 0
         self.written = 0
+        self.topics = set()                   # declared with add_topic
         self._on_error = on_error
         self._lock = threading.Lock()
         self._closed = False
@@ -59,6 +60,7 @@ class Recorder:
     def add_topic(self, topic, msgtype, *, qos=''):
         """Declare ``topic`` (e.g. '/points') of ``msgtype`` (e.g. sensor_msgs/msg/PointCloud2)."""
         message_definition(msgtype)           # unknown types fail here, in the caller
+        self.topics.add(topic)
         self._put(('topic', topic, msgtype, qos), count=False)
 
     def write(self, topic, data, t_ns):
