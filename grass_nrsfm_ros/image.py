@@ -33,7 +33,22 @@ FLAT_MARGIN = 0.02                 # "at the end": within this fraction of the f
 
 
 class ImageError(ValueError):
-    """An image message that cannot be read; the message says why."""
+    """An image message that cannot be read; the message says why, ``kind`` what sort of
+    problem it is ('malformed': layout and data disagree)."""
+
+    kind = 'malformed'
+
+
+class EncodingError(ImageError):
+    """An encoding this module does not read."""
+
+    kind = 'encoding'
+
+
+class EmptyImageError(ImageError):
+    """An image with no pixels."""
+
+    kind = 'empty'
 
 
 class CameraError(ValueError):
@@ -78,11 +93,11 @@ def image_to_numpy(msg):
     if encoding not in ENCODINGS:
         hint = ' (a Bayer image: debayer it first, e.g. image_proc)' \
             if encoding.startswith('bayer') else ''
-        raise ImageError(f'unsupported encoding {encoding!r}{hint}; expected one of '
-                         f'{sorted(ENCODINGS)}')
+        raise EncodingError(f'unsupported encoding {encoding!r}{hint}; expected one of '
+                            f'{sorted(ENCODINGS)}')
     height, width, step = _uint(msg, 'height'), _uint(msg, 'width'), _uint(msg, 'step')
     if height == 0 or width == 0:
-        raise ImageError(f'empty image ({width} x {height})')
+        raise EmptyImageError(f'empty image ({width} x {height})')
     if height * width > MAX_PIXELS:
         raise ImageError(f'image {width} x {height} is larger than {MAX_PIXELS} pixels')
     channels, dtype = ENCODINGS[encoding]

@@ -123,8 +123,8 @@ class TrackerNode(Node):
             mono = image.image_mono(msg)
         except image.ImageError as exc:
             self.stats.skipped('bad image')
-            kind = 'encoding' if msg.encoding not in image.ENCODINGS else 'malformed image'
-            return self._warn(kind, f'image at {stamp_ns(msg.header.stamp)} ns skipped: {exc}')
+            return self._warn(f'{exc.kind} image',
+                              f'image at {stamp_ns(msg.header.stamp)} ns skipped: {exc}')
         problem = image.exposure_problem(mono) if mono.dtype == np.uint8 else None
         if problem is not None:
             self.stats.skipped(problem)

@@ -124,8 +124,10 @@ def broken(kind):
     ('data', 'data is not a byte buffer'),
 ])
 def test_malformed_images_raise_a_specific_error(kind, match):
-    with pytest.raises(ImageError, match=match):
+    with pytest.raises(ImageError, match=match) as err:
         image.image_to_numpy(broken(kind))
+    assert err.value.kind == {'encoding': 'encoding', 'bayer': 'encoding', 'empty': 'empty',
+                              'empty_width': 'empty'}.get(kind, 'malformed')
 
 
 def test_exposure_problems():
