@@ -1,14 +1,16 @@
 """Live output (tracking on arrival, windows refining behind it) against the sliding windows.
 
 * offline accuracy (no ROS): the streaming bench's sequences plus a 300-frame slow face (its
-  head turn spans the whole sequence), run through :class:`~grass_nrsfm_ros.live.LivePipeline`
-  with each window solved as it closes: e3D of ``points`` (every frame as tracked on arrival,
-  the bootstrap frames included) and of ``points/refined``, against today's windows
-  (``output='windows'``, every track solved, the same SlidingWindow otherwise); mapping CPU
-  seconds per window (after the first, and from the third: resumed), frames before the first
-  model; and a causal reference: frame t of one solve of every frame up to t (what re-solving
-  the whole past at every frame would publish), at every frame t of the start-up (before the
-  first model) and 10 later ones, against the points and windows on those frames;
+  head turn spans the whole sequence), run through
+  :func:`~grass_nrsfm_ros.pipeline.reconstruct_live` (each window solved inline as it
+  closes): e3D of ``points`` (every frame as tracked on arrival, the bootstrap frames
+  included) and of ``points/refined``, against the sliding windows (``points/refined`` with
+  ``refined_from: first_window``, every track solved, the 'model' warm start); mapping CPU
+  seconds per window (``Mapper.solve``, after the first, and from the third: resumed), frames
+  before the first model; and a causal reference: frame t of one solve of every frame up to t
+  (what re-solving the whole past at every frame would publish), at every frame t of the
+  start-up (before the first model) and 10 later ones, against the points and windows on those
+  frames;
 * the node (``--node``): the slow face at 30 Hz over DDS into the node as shipped, optionally
   with the other core busy: frames back, latency from sending a frame's tracks to receiving
   its cloud (p50 / p95 / max), e3D of the received clouds on all frames.
@@ -33,12 +35,14 @@ import time
 import numpy as np
 
 from grass_nrsfm_ros import cloud
-from grass_nrsfm_ros.live import LivePipeline, reconstruct_live
+from grass_nrsfm_ros.mapper import make_mapper
+from grass_nrsfm_ros.nrsfm import GrassmannNRSfM
 from grass_nrsfm_ros.nrsfm.faces import make_face_sequence
 from grass_nrsfm_ros.nrsfm.measurement import as_frames
 from grass_nrsfm_ros.nrsfm.metrics import e3d
-from grass_nrsfm_ros.params import defaults, MAPPINGS, MIN_WINDOW_FRAMES
-from grass_nrsfm_ros.pipeline import default_solver_factory, SlidingWindow
+from grass_nrsfm_ros.params import defaults, MAPPINGS, MIN_WINDOW_FRAMES, WINDOW_KEYS
+from grass_nrsfm_ros.pipeline import make_pipeline, reconstruct_live
+from grass_nrsfm_ros.windowing import Windowing
 from . import common
 from .streaming import accuracy_sequences
 
@@ -61,29 +65,30 @@ def slow_face(P):
     return seq.W, seq.S
 
 
-def run_pipeline(W, output, mapping_tracks, warm_start=None):
-    """``(points, refined, pipeline, mapping CPU seconds per window)`` of ``W: (2F, P)``: the
-    CPU time of each ``LivePipeline.solve`` (rotations, the solve, the next model), one BLAS
-    thread as in the solver. ``warm_start``: the SlidingWindow's (None: its default)."""
+def run_pipeline(W, mapping_tracks, **options):
+    """``(points, refined, pipeline, mapping CPU seconds per window)`` of ``W: (2F, P)``
+    through the default pipeline (inline, GrassmannNRSfM) with ``options`` (parameters, e.g.
+    ``refined_from``, ``warm_start``) over the defaults: the CPU time of each
+    ``Mapper.solve`` that solved (rotations, the solve, the next model), one BLAS thread as
+    in the solver."""
     F, P = W.shape[0] // 2, W.shape[1]
     ids = np.arange(P, dtype=np.uint32)
-    options = {} if warm_start is None else {'warm_start': warm_start}
-    if output == 'live':
-        options['refined_from'] = defaults()['refined_from']
-    pipe = LivePipeline(SlidingWindow(default_solver_factory(), mapping_tracks=mapping_tracks,
-                                      **options), output=output)
-    solve, cpu = pipe.solve, []
+    pipe = make_pipeline({**defaults(), 'mapping_tracks': mapping_tracks, **options},
+                         GrassmannNRSfM)
+    mapper = pipe.backend.mapper
+    solve, cpu = mapper.solve, []
 
     def timed(window, progress=None):
-        start, released = time.process_time(), pipe.windows.releases(window)
-        out = solve(window, progress)
-        if not released:
+        start = time.process_time()
+        update = solve(window, progress)
+        if update.kind == 'solved':
             cpu.append(time.process_time() - start)
-        return out
-    pipe.solve = timed
-    points, refined = reconstruct_live(pipe, np.arange(F),
-                                       [(ids, uv.T) for uv in as_frames(W, 2)])
+        return update
+    mapper.solve = timed
+    points, refined, _ = reconstruct_live(pipe, np.arange(F),
+                                          [(ids, uv.T) for uv in as_frames(W, 2)])
     assert [r.stamp_ns for r in points] == list(range(F)), 'every frame published once'
+    assert [r.stamp_ns for r in refined] == list(range(F)), 'every frame refined once'
     return points, refined, pipe, cpu
 
 
@@ -117,30 +122,34 @@ def causal_reference(W, frames):
     P = W.shape[1]
     ids = np.arange(P, dtype=np.uint32)
     uv = as_frames(W, 2)
+    config = defaults()
     out = []
     for t in frames:
         n = int(t) + 1
-        windows = SlidingWindow(default_solver_factory(), window_size=n,
-                                window_stride=min(n, defaults()['window_stride']))
+        windowing = Windowing(**{**{k: config[k] for k in WINDOW_KEYS}, 'window_size': n,
+                                 'window_stride': min(n, config['window_stride'])})
         for f in range(n):
-            closed = windows.add_frame(f, ids, uv[f].T)
-        out.append(windows.solve(closed[0])[-1].xyz.T)
+            closed = windowing.push(windowing.accept(f, ids, uv[f].T))
+        update = make_mapper(config, GrassmannNRSfM).solve(closed[0])
+        out.append(update.results[-1].xyz.T)
     return np.vstack(out)
 
 
 def compare(name, W, S, mapping_tracks):
     """One row: live points / refined vs today's windows, mapping CPU per window."""
-    points, refined, live, cpu = run_pipeline(W, 'live', mapping_tracks)
-    windows, _, _, cpu_windows = run_pipeline(W, 'windows', 0, warm_start=BASELINE_WARM_START)
+    points, refined, live, cpu = run_pipeline(W, mapping_tracks)
+    _, windows, _, cpu_windows = run_pipeline(W, 0, refined_from='first_window',
+                                              warm_start=BASELINE_WARM_START)
     per_frame = e3d(stacked(points), S, per_frame=True)
     windows_per_frame = e3d(stacked(windows), S, per_frame=True)
-    first = live.stats['first_model_after']
+    first = live.tracking.stats['first_model_after']
     row = {'sequence': name, 'F': W.shape[0] // 2, 'P': W.shape[1],
            'e3d_points': float(per_frame.mean()),
            'e3d_points_after_first_model': float(per_frame[first:].mean()),
            'e3d_windows_after_first_model': float(windows_per_frame[first:].mean()),
            'e3d_refined': e3d(stacked(refined), S), 'e3d_windows': e3d(stacked(windows), S),
-           'first_model_after_frames': first, 'fresh_windows': live.stats['fresh_windows'],
+           'first_model_after_frames': first,
+           'fresh_windows': live.tracking.stats['fresh_windows'],
            'tracking_ms_p50': 1e3 * live.latency_percentiles()[0],
            'tracking_ms_p95': 1e3 * live.latency_percentiles()[1],
            'mapping_cpu_per_window_s': float(np.mean(cpu[1:] or cpu)),
@@ -277,7 +286,7 @@ def main(argv=None):
     parser.add_argument('--rate', type=float, default=30.0)
     parser.add_argument('--busy', action='store_true', help='keep the other core busy')
     parser.add_argument('--mapping', default=None,
-                        help="the node's mapping parameter, or several (worker,process) run in "
+                        help="the node's mapping parameter, or several (inline,process) run in "
                         "turn (default: the node's; given, it names the result: "
                         '10000_busy_process)')
     parser.add_argument('--repeat', type=int, default=1,

@@ -1,36 +1,40 @@
-"""Streaming through pipeline.SlidingWindow (no ROS), window 30 / stride 10 (the defaults):
+"""Streaming: the sliding windows' output (no ROS), window 30 / stride 10 (the defaults).
 
-* accuracy: e3D of the streamed clouds (every frame as published, once) against the
-  whole-sequence solve and against rigid factorisation per window (published the same way), on
-  dense faces (60 and 99 frames; skipped without the face model), the synthetic kinds and the
-  mocap sets of the data folder;
-* warm start: the default ('resume': the previous window's ADMM run resumed) against 'model'
-  (the previous solution's spatial groups and rotation method carried), 'off' (each window
-  from the solver's own start) and 'full' (also the previous rotations and shapes of the
-  overlapping frames); iterations and CPU seconds per window (windows after the first, the
-  whole SlidingWindow.solve);
+The pipeline is :func:`~grass_nrsfm_ros.pipeline.reconstruct_live` over an inline
+LivePipeline, and the output measured is ``points/refined`` with ``refined_from:
+first_window``: each frame once, from the first window that solves it (the sliding windows).
+
+* accuracy: e3D of those clouds against the whole-sequence solve and against rigid
+  factorisation per window (published the same way), on dense faces (60 and 99 frames;
+  skipped without the face model), the synthetic kinds and the mocap sets of the data folder;
+* warm start: the default ('resume': the previous window's solution resumed) against 'model'
+  (the previous solution's spatial groups and rotation method carried); iterations and CPU
+  seconds per window (windows after the first, the whole ``Mapper.solve``);
 * throughput: frames per second sustained and window latency for 1k, 10k and 30k tracks.
 
-Frames are fed as fast as the pipeline takes them, on one thread, with no window skipped:
-``fps = frames published / (time in add_frame + solve)``; a window's latency is from the moment
-it closed (``Window.closed_at``) to the end of its solve. The solver is GrassmannNRSfM (the
-pipeline's default factory, recorded in the JSON as 'ours').
+Frames are fed as fast as the pipeline takes them, on one thread, with no window skipped (the
+inline backend solves each window as it closes, inside ``add_frame``): ``fps = frames refined
+/ time in add_frame, refined and flush`` (the per-frame tracking included); a window's latency
+is from the moment it closed (``Update.closed_at``) to its Update being taken. The solver is
+GrassmannNRSfM (recorded in the JSON as 'ours').
 """
+import functools
 import time
 from types import SimpleNamespace
 
 import numpy as np
 
+from grass_nrsfm_ros.nrsfm import GrassmannNRSfM
 from grass_nrsfm_ros.nrsfm.metrics import e3d
 from grass_nrsfm_ros.nrsfm.synthetic import kinds
-from grass_nrsfm_ros.pipeline import default_solver_factory, reconstruct_sequence, SlidingWindow
+from grass_nrsfm_ros.params import defaults
+from grass_nrsfm_ros.pipeline import make_pipeline, reconstruct_live
 from . import common, plot
 
 PIXELS_PER_UNIT = 200.0
 WINDOW, STRIDE = 30, 10
-#: the streaming variants compared (``warm_start``): the default and the two others
-VARIANTS = (('resume', {}), ('model', {'warm_start': 'model'}), ('off', {'warm_start': 'off'}),
-            ('full', {'warm_start': 'full'}))
+#: the streaming variants compared (``warm_start``): the default and the other
+VARIANTS = (('resume', {}), ('model', {'warm_start': 'model'}))
 
 
 class RigidSolver:
@@ -43,46 +47,60 @@ class RigidSolver:
 
 
 class Counting:
-    """A solver factory that records ``(iterations, CPU seconds)`` of each fit."""
+    """A solver factory that records ``(iterations, CPU seconds)`` of each fit; the solver is
+    otherwise the factory's own (its parameters and ``fit``'s keywords, which the mapper
+    reads, unchanged)."""
 
     def __init__(self, factory):
         self.factory, self.fits = factory, []
 
     def __call__(self):
-        inner, fits = self.factory(), self.fits
+        solver, fits = self.factory(), self.fits
+        fit = solver.fit
 
-        class Fit:
-            def fit(self, W, init=None):
-                start = time.process_time()
-                result = inner.fit(W, init=init) if init is not None else inner.fit(W)
-                fits.append((getattr(result.report, 'iterations', 0),
-                             time.process_time() - start))
-                return result
-        return Fit()
+        @functools.wraps(fit)
+        def counted(W, *args, **kwargs):
+            start = time.process_time()
+            result = fit(W, *args, **kwargs)
+            fits.append((getattr(result.report, 'iterations', 0),
+                         time.process_time() - start))
+            return result
+        solver.fit = counted
+        return solver
+
+
+def sliding_pipeline(factory, **options):
+    """An inline LivePipeline with the defaults, window WINDOW / STRIDE, ``refined_from:
+    first_window`` and ``options`` (parameters), solving with ``factory``."""
+    return make_pipeline({**defaults(), 'window_size': WINDOW, 'window_stride': STRIDE,
+                          'refined_from': 'first_window', **options}, factory)
 
 
 def streamed(W, factory, **options):
-    """Run ``W: (2F, P)`` through a SlidingWindow; ``(S: (3F, P) as published, pipeline)``."""
+    """Run ``W: (2F, P)`` through :func:`sliding_pipeline`; ``(S: (3F, P) as refined,
+    CPU seconds of each Mapper.solve that solved)``."""
     F, P = W.shape[0] // 2, W.shape[1]
     ids = np.arange(P, dtype=np.uint32)
-    pipe = SlidingWindow(factory, window_size=WINDOW, window_stride=STRIDE, **options)
-    solve, pipe.solve_cpu = pipe.solve, []
+    pipe = sliding_pipeline(factory, **options)
+    mapper = pipe.backend.mapper
+    solve, solve_cpu = mapper.solve, []
 
-    def timed_solve(window):
+    def timed_solve(window, progress=None):
         start = time.process_time()
-        out = solve(window)
-        pipe.solve_cpu.append(time.process_time() - start)
-        return out
-    pipe.solve = timed_solve
-    results = reconstruct_sequence(pipe, np.arange(F), [(ids, W[2 * f:2 * f + 2].T)
-                                                        for f in range(F)])
-    assert [r.stamp_ns for r in results] == list(range(F)), 'every frame published once'
-    return np.vstack([r.xyz.T for r in results]), pipe
+        update = solve(window, progress)
+        if update.kind == 'solved':
+            solve_cpu.append(time.process_time() - start)
+        return update
+    mapper.solve = timed_solve
+    _, results, _ = reconstruct_live(pipe, np.arange(F), [(ids, W[2 * f:2 * f + 2].T)
+                                                          for f in range(F)])
+    assert [r.stamp_ns for r in results] == list(range(F)), 'every frame refined once'
+    return np.vstack([r.xyz.T for r in results]), solve_cpu
 
 
 def per_window(fits, solve_cpu):
-    """Mean solver iterations and CPU seconds of ``SlidingWindow.solve`` (rotations included)
-    of the windows after the first."""
+    """Mean solver iterations and CPU seconds of ``Mapper.solve`` (rotations included) of the
+    windows after the first."""
     later = fits[1:] or fits
     return float(np.mean([f[0] for f in later])), float(np.mean(solve_cpu[1:] or solve_cpu))
 
@@ -95,12 +113,11 @@ def compare(name, W, S, factory):
            'e3d_whole': e3d(whole.S, S), 'whole_cpu_s': cpu}
     for label, options in VARIANTS:
         counting = Counting(factory)
-        S_stream, pipe = streamed(W, counting, **options)
-        iterations, seconds = per_window(counting.fits, pipe.solve_cpu)
+        S_stream, solve_cpu = streamed(W, counting, **options)
+        iterations, seconds = per_window(counting.fits, solve_cpu)
         row.update({f'e3d_stream_{label}': e3d(S_stream, S), f'iterations_{label}': iterations,
                     f'cpu_per_window_{label}_s': seconds})
-    row['e3d_rigid_per_window'] = e3d(streamed(W, RigidSolver, warm_start='off',
-                                               context_frames=0)[0], S)
+    row['e3d_rigid_per_window'] = e3d(streamed(W, RigidSolver, context_frames=0)[0], S)
     row['windows'] = len(counting.fits)
     common.log(f"{name:>16} F={row['F']:4d} P={row['P']:5d}  e3D whole {row['e3d_whole']:.4f}"
                f"  rigid/window {row['e3d_rigid_per_window']:.4f}  streamed (e3D, iterations, "
@@ -134,27 +151,29 @@ def stream(P, n_frames, window_size, stride, factory):
     W, _ = common.synthetic('bending', n_frames, P)
     W = PIXELS_PER_UNIT * W + 320.0
     ids = np.arange(P, dtype=np.uint32)
-    pipe = SlidingWindow(factory, window_size=window_size, window_stride=stride,
-                         min_tracks=10)
+    pipe = make_pipeline({**defaults(), 'window_size': window_size, 'window_stride': stride,
+                          'min_tracks': 10, 'refined_from': 'first_window'}, factory)
     busy, latencies, solve_s, published = 0.0, [], [], 0
     for f in range(n_frames):
         t = time.monotonic()
-        windows = pipe.add_frame(1_000_000 * (f + 1), ids, W[2 * f:2 * f + 2].T)
-        busy += time.monotonic() - t
-        for window in windows + (pipe.flush() if f == n_frames - 1 else []):
-            t = time.monotonic()
-            published += len(pipe.solve(window))
-            done = time.monotonic()
-            busy += done - t
-            solve_s.append(done - t)
-            latencies.append(done - window.closed_at)
+        pipe.add_frame(1_000_000 * (f + 1), ids, W[2 * f:2 * f + 2].T)
+        if f == n_frames - 1:
+            pipe.flush()
+        refined, updates = pipe.refined()
+        done = time.monotonic()
+        busy += done - t
+        published += len(refined)
+        for update in updates:
+            solve_s.append(update.figures.get('solve_seconds', 0.0))
+            latencies.append(done - update.closed_at)
     row = {'P': P, 'frames': n_frames, 'window_size': window_size, 'window_stride': stride,
            'windows': len(latencies), 'frames_published': published,
            'fps': published / busy if busy > 0 else None,
            'latency_mean_s': float(np.mean(latencies)),
            'latency_max_s': float(np.max(latencies)),
            'latency_steady_s': float(np.mean(latencies[1:] or latencies)),
-           'solve_mean_s': float(np.mean(solve_s)), 'stats': dict(pipe.stats)}
+           'solve_mean_s': float(np.mean(solve_s)),
+           'stats': {**pipe.windowing.stats, **pipe.refinement.stats}}
     common.log(f"{P:>6} tracks: {row['fps']:.2f} frames/s sustained, window latency mean "
                f"{row['latency_mean_s']:.2f} s (first {latencies[0]:.2f}, later "
                f"{row['latency_steady_s']:.2f}, max {row['latency_max_s']:.2f})")
@@ -162,7 +181,7 @@ def stream(P, n_frames, window_size, stride, factory):
 
 
 def run(mode):
-    factory, solver = default_solver_factory(), 'ours'
+    factory, solver = GrassmannNRSfM, 'ours'
     rows, skipped, accuracy = [], [], []
     for name, W, S in accuracy_sequences(mode):
         try:

@@ -2,12 +2,12 @@
 pytest puts test/ on the path, and the node tests' launch strings run from test/).
 
 Inputs: :func:`bending_sheet` (``W: (2F, P)`` pixels, ``S: (3F, P)``, ``ids: (P,)``),
-:func:`random_rotations` (``(F, 3, 3)``). A real rigid solver, :class:`RigidALS` with its
-:class:`RigidWarmStart`, which the node and pipeline tests inject in place of GrassmannNRSfM;
-solvers that misbehave (NaN, slow, not cancellable, failing, crashing); stand-ins with the
-solver's or the pipeline's protocol.
+:func:`random_rotations` (``(F, 3, 3)``). A real rigid solver, :class:`RigidALS` (it takes
+``grass_nrsfm_ros.nrsfm.WarmStart`` and reports ``rotation_method='rigid'``, so the mapper's
+default 'resume' warm start resumes it), which the node and pipeline tests inject in place of
+GrassmannNRSfM; solvers that misbehave (NaN, slow, not cancellable, failing, crashing);
+stand-ins with the solver's or the pipeline's protocol.
 """
-from dataclasses import dataclass
 import os
 from pathlib import Path
 import signal
@@ -16,7 +16,6 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from grass_nrsfm_ros.live import Step
 from grass_nrsfm_ros.nrsfm import GrassmannNRSfM
 from grass_nrsfm_ros.nrsfm.measurement import as_frames, centre
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
@@ -52,16 +51,6 @@ def bending_sheet(F=60, P=200, *, bend=0.15, noise=0.0, seed=0):
 
 
 # -- a real rigid solver (the node tests inject it) --------------------------------------------
-@dataclass
-class RigidWarmStart:
-    """The warm start the rigid solver takes (the fields of nrsfm.WarmStart it reads)."""
-    R: np.ndarray = None
-    S: np.ndarray = None
-    known: np.ndarray = None
-    groups: np.ndarray = None
-    rotation_method: str = None
-
-
 def camera_rows(A):
     """Nearest 2x3 matrices with orthonormal rows to ``A: (F, 2, 3)``."""
     U, _, Vt = np.linalg.svd(A, full_matrices=False)
@@ -95,10 +84,11 @@ def tomasi_kanade(Wc):
 
 
 class RigidALS:
-    """Iterative rigid factorisation: start from Tomasi-Kanade (or a warm start's rotations),
-    then alternate shape (least squares) and cameras (a majorise-minimise step on the
-    orthonormal-rows constraint) until the
-    relative change of the residual is below ``tol``."""
+    """Iterative rigid factorisation: start from Tomasi-Kanade (or a warm start's rotations:
+    ``init.R`` on the ``init.known`` frames, all when ``known`` is None, as a resumed
+    WarmStart gives them), then alternate shape (least squares) and cameras (a
+    majorise-minimise step on the orthonormal-rows constraint) until the relative change of
+    the residual is below ``tol``."""
 
     def __init__(self, tol=1e-7, max_iterations=500):
         self.tol, self.max_iterations = tol, max_iterations
@@ -107,9 +97,10 @@ class RigidALS:
         start = time.process_time()
         Wc, t = centre(W)
         cams, X = tomasi_kanade(Wc)
-        if init is not None and init.R is not None and init.known.any():
+        known = None if init is None or init.R is None else (
+            np.ones(len(init.R), dtype=bool) if init.known is None else np.asarray(init.known))
+        if known is not None and known.any():
             # rotate the closed-form start into the warm start's world, keep its known cameras
-            known = init.known
             Q = camera_rows(np.einsum('fij,fik->jk', cams[known], init.R[known, :2])[None])[0]
             cams = cams @ Q
             cams[known] = init.R[known, :2]
@@ -127,7 +118,7 @@ class RigidALS:
             previous = residual
         R = full_rotation(cams)
         S = (R @ X).reshape(-1, X.shape[1])
-        report = SimpleNamespace(iterations=it, residual=residual,
+        report = SimpleNamespace(iterations=it, residual=residual, rotation_method='rigid',
                                  seconds={'total': time.process_time() - start})
         return SimpleNamespace(S=S, R=R, translation=t, groups=None, report=report)
 
@@ -251,23 +242,31 @@ class RecordingGrassmann:
 
 
 class ChunkPipeline:
-    """A stand-in with LivePipeline's protocol in ``output='windows'``: windows of 3 frames,
-    xyz = (u, v, u + v), published when solved."""
+    """A stand-in with LivePipeline's protocol: each frame out on ``points`` at once with
+    xyz = (u, v, u + v); a 'window' of every 3 frames (and of the rest at ``flush``) gives an
+    Update, its frames on ``points/refined`` alike."""
 
     def __init__(self):
-        self.buffer = []
+        self.buffer, self._refined, self._updates = [], [], []
 
     def add_frame(self, stamp_ns, ids, uv, frame_id=''):
         if len(ids) < 3:
             raise ValueError(f'{len(ids)} tracks')
-        self.buffer.append((stamp_ns, frame_id, ids, uv))
-        return Step(windows=tuple(self.flush()) if len(self.buffer) == 3 else ())
+        result = SimpleNamespace(stamp_ns=stamp_ns, frame_id=frame_id, ids=ids,
+                                 xyz=np.c_[uv, uv.sum(axis=1)])
+        self.buffer.append(result)
+        if len(self.buffer) == 3:
+            self.flush()
+        return (result,)
 
     def flush(self):
-        window, self.buffer = self.buffer, []
-        return [window] if window else []
+        if self.buffer:
+            self._refined += self.buffer
+            self._updates.append(SimpleNamespace(kind='solved', index=len(self._updates),
+                                                 message=''))
+        self.buffer = []
 
-    def solve(self, window):
-        return Step(points=tuple(SimpleNamespace(stamp_ns=s, frame_id=f, ids=i,
-                                                 xyz=np.c_[uv, uv.sum(axis=1)])
-                                 for s, f, i, uv in window))
+    def refined(self):
+        out = (self._refined, self._updates)
+        self._refined, self._updates = [], []
+        return out

@@ -2,7 +2,7 @@
 
 Generates :func:`~grass_nrsfm_ros.nrsfm.synthetic.default_sequence` (no external data), then
 1. reconstructs it whole with GrassmannNRSfM and with rigid factorisation, printing e3D;
-2. converts it to a tracks bag and runs the node's sliding-window pipeline over it offline,
+2. converts it to a tracks bag and runs the node's live pipeline over it offline,
    recording tracks, ground truth and reconstructed points in an MCAP bag, printing e3D;
 3. draws the last frame (estimate beside ground truth) as a PNG.
 """
@@ -15,11 +15,11 @@ import numpy as np
 from grass_nrsfm_ros import bag
 from grass_nrsfm_ros.commands.reconstruct import reconstruct_bag
 from grass_nrsfm_ros.commands.render import renderer
-from grass_nrsfm_ros.live import make_pipeline
 from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM, synthetic
 from grass_nrsfm_ros.nrsfm.metrics import procrustes_align
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
 from grass_nrsfm_ros.params import defaults
+from grass_nrsfm_ros.pipeline import make_pipeline
 
 
 def add_arguments(parser):
@@ -52,7 +52,10 @@ def streaming(seq, tracks_bag, points_bag):
     """Run the node's pipeline over ``tracks_bag`` offline; print the e3D of the frames as
     tracked on arrival (``points``) and as their windows refined them (``points/refined``)."""
     pipeline = make_pipeline(defaults())
-    report = reconstruct_bag(tracks_bag, points_bag, pipeline, progress=None)
+    try:
+        report = reconstruct_bag(tracks_bag, points_bag, pipeline, progress=None)
+    finally:
+        pipeline.close()
     figures = []
     for topic in (bag.POINTS_TOPIC, bag.REFINED_TOPIC):
         S, ids, _ = bag.read_S(points_bag, topic)
@@ -60,10 +63,10 @@ def streaming(seq, tracks_bag, points_bag):
         done = np.isfinite(S).all(axis=1).reshape(-1, 3).all(axis=1)    # (F,) frames published
         keep = np.repeat(done, 3)
         figures.append(e3d(S[keep], S_gt[keep]))
-    windows = pipeline.windows
+    windows = pipeline.windowing
     print(f'live (window {windows.window_size}, stride {windows.window_stride}): '
           f'{report.frames_out}/{report.frames_in} frames, e3D {figures[0]:.4f} as tracked on '
-          f'arrival ({pipeline.stats["bootstrap_frames"]} before the first model); '
+          f'arrival ({pipeline.tracking.stats["bootstrap_frames"]} before the first model); '
           f'{report.frames_refined} refined, e3D {figures[1]:.4f}; {report.seconds:.1f} s')
 
 

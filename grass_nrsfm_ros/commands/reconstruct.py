@@ -5,9 +5,9 @@ printed); ``OUT.npz`` gets ``S``, ``R``, ``translation``, ``groups`` and the sol
 string ``report``). The solver needs complete tracks: an input whose ``visible: (F, P)`` marks
 entries as unobserved is refused, unless ``--complete-tracks`` keeps the tracks seen in every
 frame (their columns are saved as ``points``, which ``evaluate`` uses). A bag directory or
-``.mcap``/``.bag`` file runs the node's sliding-window pipeline offline and writes an output
-bag (there, each window uses the tracks it sees throughout): :func:`reconstruct_bag`, which
-the demo uses too, owns that offline run.
+``.mcap``/``.bag`` file runs the node's live pipeline offline (each window solved inline as it
+closes) and writes an output bag (there, each window uses the tracks it sees throughout):
+:func:`reconstruct_bag`, which the demo uses too, owns that offline run.
 """
 from collections import Counter
 from dataclasses import dataclass, field
@@ -24,10 +24,10 @@ from grass_nrsfm_ros import bag
 from grass_nrsfm_ros.cli import UserError
 from grass_nrsfm_ros.cloud import CloudError, decode_tracks
 from grass_nrsfm_ros.commands.npz import complete_tracks, load_tracks
-from grass_nrsfm_ros.live import make_pipeline
 from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM
 from grass_nrsfm_ros.nrsfm.measurement import validate_shapes
 from grass_nrsfm_ros.params import load_config, solver_kwargs
+from grass_nrsfm_ros.pipeline import make_pipeline
 
 
 def add_arguments(parser):
@@ -157,19 +157,19 @@ def reconstruct_bag(in_path, out_path, pipeline, *, topic=bag.TRACKS_TOPIC,
                     copy_inputs=True, progress=None, skip_errors=(ValueError,)):
     """Run the pipeline over a tracks bag offline, each window solved as it closes (so the
     output is reproducible), as fast as the solver goes, and write a bag at ``out_path`` with
-    ``points_topic`` (one cloud per frame as tracked on arrival, or as its window published it
-    with ``output='windows'``), ``refined_topic`` (each frame once its window is solved), both
-    stamped with the frame's stamp and logged at its tracks' receive time, and, with
-    ``copy_inputs``, every input message (CDR as recorded; for a ROS 1 source only the tracks,
-    re-encoded).
+    ``points_topic`` (one cloud per frame as tracked on arrival), ``refined_topic`` (each frame
+    once the refinement policy lets it out), both stamped with the frame's stamp and logged at
+    its tracks' receive time, and, with ``copy_inputs``, every input message (CDR as recorded;
+    for a ROS 1 source only the tracks, re-encoded).
 
-    ``pipeline`` is a :class:`grass_nrsfm_ros.live.LivePipeline` (or anything with
-    ``add_frame(stamp_ns, ids, uv, frame_id) -> Step``, ``solve(window) -> Step`` and
-    ``flush() -> [window]``; a Step's ``points`` and ``refined`` results have ``stamp_ns,
-    frame_id, ids: (P,), xyz: (P, 3)``, its ``windows`` are to solve). Frames and windows
-    that raise one of ``skip_errors`` are refused and listed in the report.
-    ``progress(done, total)`` is called after every input frame. Returns a
-    :class:`ReconstructionReport`.
+    ``pipeline`` is an inline :class:`grass_nrsfm_ros.pipeline.LivePipeline` (or anything with
+    ``add_frame(stamp_ns, ids, uv, frame_id) -> (result,)``, ``refined() -> (results,
+    updates)`` and ``flush()``; a result has ``stamp_ns, frame_id, ids: (P,), xyz: (P, 3)``, an
+    update ``kind``, ``index`` and ``message``), driven as
+    :func:`~grass_nrsfm_ros.pipeline.reconstruct_live` drives it, with the bag read and
+    written as it goes. Frames that raise one of ``skip_errors`` and windows that fail are
+    refused and listed in the report. ``progress(done, total)`` is called after every input
+    frame. Returns a :class:`ReconstructionReport`.
     """
     report = ReconstructionReport(out_path=Path(out_path))
     t_wall, t_cpu = time.perf_counter(), time.process_time()
@@ -182,22 +182,18 @@ def reconstruct_bag(in_path, out_path, pipeline, *, topic=bag.TRACKS_TOPIC,
             for c in conns:
                 out.add_topic(c.topic, c.msgtype, definition=bag.definition_of(c))
 
-        def emit(step):
-            for results, name in ((step.points, points_topic), (step.refined, refined_topic)):
-                for r in results:
-                    out.write_points(np.asarray(r.xyz), np.asarray(r.ids), r.stamp_ns,
-                                     r.frame_id, topic=name,
-                                     t_ns=received.get(r.stamp_ns, r.stamp_ns))
-            report.frames_out += len(step.points)
-            report.frames_refined += len(step.refined)
+        def write(results, name):
+            for r in results:
+                out.write_points(np.asarray(r.xyz), np.asarray(r.ids), r.stamp_ns, r.frame_id,
+                                 topic=name, t_ns=received.get(r.stamp_ns, r.stamp_ns))
 
-        def solve(windows):
-            for window in windows:
-                report.windows += 1
-                try:
-                    emit(pipeline.solve(window))
-                except skip_errors as exc:
-                    report.refused.append(f'window {report.windows}: {exc}')
+        def take_refined():
+            results, updates = pipeline.refined()
+            write(results, refined_topic)
+            report.frames_refined += len(results)
+            report.windows += len(updates)
+            report.refused += [f'window {u.index}: {u.message}' for u in updates
+                               if u.kind == 'failed']
 
         for conn, t_ns, raw in src.messages(conns):
             is_tracks = conn.topic == topic
@@ -217,28 +213,30 @@ def reconstruct_bag(in_path, out_path, pipeline, *, topic=bag.TRACKS_TOPIC,
             try:
                 tracks = decode_tracks(msg)
                 received.setdefault(stamp, t_ns)
-                step = pipeline.add_frame(stamp, tracks.ids, tracks.uv, msg.header.frame_id)
-                emit(step)
-                solve(step.windows)
+                points = pipeline.add_frame(stamp, tracks.ids, tracks.uv, msg.header.frame_id)
+                write(points, points_topic)
+                report.frames_out += len(points)
             except (CloudError, *skip_errors) as exc:
                 report.refused.append(f'frame {report.frames_in - 1} (stamp {stamp}): {exc}')
+            take_refined()
             if progress is not None:
                 progress(report.frames_in, total)
-        solve(pipeline.flush())
+        pipeline.flush()
+        take_refined()
     report.seconds = time.perf_counter() - t_wall
     report.cpu_seconds = time.process_time() - t_cpu
     return report
 
 
 def reconstruct_bag_file(args):
-    """The node's sliding-window pipeline over a tracks bag, offline, into an output bag; a
+    """The node's live pipeline over a tracks bag, offline, into an output bag; a
     refused input (corrupt or truncated bag, missing topic) leaves no output behind."""
     config = load_config(args.config) if args.config else {}
     known = bag.topics(args.input)                      # corrupt bags fail here, before output
     if args.topic not in known:
         raise bag.TopicNotFoundError(f'bag {args.input} has no topic {args.topic!r} (topics: '
                                      f'{", ".join(sorted(known)) or "none"})')
-    pipeline = make_pipeline(config)
+    pipeline = make_pipeline(config)                    # inline: the output is reproducible
     out = Path(args.output)
     existed = out.exists()
     try:
@@ -248,6 +246,8 @@ def reconstruct_bag_file(args):
         if not existed and out.exists():
             shutil.rmtree(out)                          # no half-written output bag
         raise
+    finally:
+        pipeline.close()
     print(f'{args.input}: {report.frames_in} frames in, {report.frames_out} reconstructed in '
           f'{report.windows} windows, {report.seconds:.1f} s -> {args.output}')
     for line in report.refused:
