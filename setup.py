@@ -18,6 +18,7 @@ COLCON_STYLE = any(cmd in sys.argv for cmd in ('install', 'develop'))
 console_scripts = ['grass-nrsfm = grass_nrsfm_ros.cli:main']
 if COLCON_STYLE:
     console_scripts.append('node = grass_nrsfm_ros.node:main')
+    console_scripts.append('tracker = grass_nrsfm_ros.tracker_node:main')
 
 PLOT = ['matplotlib>=3.5']     # pictures: grass-nrsfm render, bench plots
 

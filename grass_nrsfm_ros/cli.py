@@ -15,6 +15,7 @@ COMMANDS = {
     'reconstruct': 'Reconstruct W from an .npz (or a tracks bag) into S, R and a report.',
     'evaluate': 'Print e3D of a reconstruction against ground truth.',
     'node': 'Start the ROS 2 node (same as `ros2 run grass_nrsfm_ros node`).',
+    'tracker': 'Start the tracker node, images to tracks (`ros2 run grass_nrsfm_ros tracker`).',
     'replay': 'Publish the tracks topic of a bag with its original timing.',
     'convert': 'Turn an .npz with W (and optional S) into a tracks bag.',
     'recover': 'Rebuild a killed recording (no metadata, no index) into a readable bag.',

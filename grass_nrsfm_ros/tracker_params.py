@@ -10,6 +10,7 @@ No ROS import.
 
 ``python -m grass_nrsfm_ros.tracker_params`` prints the default ``config/tracker.yaml``.
 """
+from pathlib import Path
 import textwrap
 
 import numpy as np
@@ -79,6 +80,8 @@ def load_region(mask_path, roi):
         return tuple(roi) if roi else None
     import cv2
 
+    if not Path(mask_path).is_file():
+        raise ValueError(f'mask {mask_path!r}: no such file')
     mask = cv2.imread(str(mask_path), cv2.IMREAD_GRAYSCALE)
     if mask is None:
         raise ValueError(f'mask {mask_path!r}: cannot read it as an image')

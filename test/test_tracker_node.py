@@ -392,3 +392,24 @@ def test_two_namespaced_pipelines_keep_their_streams_apart(ros_env, tmp_path):
         rclpy.shutdown(context=context)
         codes = [(key, stop(proc)) for proc, key in procs]
     assert all(code == 0 for _, code in codes), codes
+
+
+def test_cli_starts_and_stops_the_tracker(ros_env, tmp_path):
+    """``grass-nrsfm tracker --ros-args ...``: the start-up line, exit code 0 on Ctrl-C; an
+    unreadable mask: one error line, exit code 2."""
+    namespace = unique_namespace()
+    cli = [sys.executable, '-m', 'grass_nrsfm_ros.cli', 'tracker', '--ros-args']
+    proc = subprocess.Popen([*cli, '-r', f'__ns:={namespace}', '-p', 'roi:=[8, 8, 100, 90]'],
+                            env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
+    watchdog = threading.Timer(60, proc.kill)
+    watchdog.start()
+    first = proc.stdout.readline()           # the start-up line, once the node is up
+    watchdog.cancel()
+    assert 'step 4 px, roi [8, 8, 100, 90]' in first, first
+    assert stop(proc) == 0, first + proc.stdout.read()
+    bad = subprocess.run([*cli, '-p', f'mask:={tmp_path}/none.png'], env=ros_env,
+                         capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2
+    assert bad.stderr.strip().splitlines()[-1] == \
+        f"grass_nrsfm tracker: error: mask '{tmp_path}/none.png': no such file"

@@ -47,8 +47,11 @@ def test_region_from_mask_and_roi(tmp_path):
     assert cut.sum() == 20 * 10 and cut[10:30, 20:30].all()
     with pytest.raises(ValueError, match='no non-zero pixel inside roi'):
         tracker_params.load_region(str(path), [0, 0, 5, 5])
-    with pytest.raises(ValueError, match='cannot read it as an image'):
+    with pytest.raises(ValueError, match='no such file'):
         tracker_params.load_region(str(tmp_path / 'none.png'), [])
+    (tmp_path / 'text.png').write_text('not a PNG')
+    with pytest.raises(ValueError, match='cannot read it as an image'):
+        tracker_params.load_region(str(tmp_path / 'text.png'), [])
     assert tracker_params.validate({'roi': None})['roi'] == []      # unset in rclpy
 
 
