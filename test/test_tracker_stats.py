@@ -17,7 +17,7 @@ def test_config_file_is_the_rendered_defaults():
     """config/tracker.yaml (regenerate: python -m grass_nrsfm_ros.tracker_params)."""
     assert CONFIG.read_text() == tracker_params.render_yaml()
     yaml = pytest.importorskip('yaml')
-    section = yaml.safe_load(CONFIG.read_text())[tracker_params.TRACKER_NODE_NAME]
+    section = yaml.safe_load(CONFIG.read_text())[tracker_params.FILE_KEY]
     assert tracker_params.validate(section['ros__parameters']) == tracker_params.defaults()
 
 

@@ -1,0 +1,116 @@
+"""launch/camera.launch.py: imported against stubs of the ``launch`` / ``launch_ros`` modules
+that record what it builds (the launch packages are not on PyPI): the tracker feeds the
+reconstruction node in one namespace, every argument is declared and used, the default
+parameter files exist and name only known parameters. Where ``launch_ros`` is importable, the
+description is also built with the real classes."""
+import importlib.util
+from pathlib import Path
+import sys
+import types
+
+import pytest
+import yaml
+
+from grass_nrsfm_ros import params, tracker_params
+
+REPO = Path(__file__).resolve().parents[1]
+LAUNCH_FILE = REPO / 'launch' / 'camera.launch.py'
+ARGUMENTS = {'namespace', 'image', 'camera_info', 'tracker_params_file', 'params_file', 'rviz'}
+STUBS = {'launch': ['LaunchDescription'], 'launch.actions': ['DeclareLaunchArgument'],
+         'launch.conditions': ['IfCondition'],
+         'launch.substitutions': ['LaunchConfiguration', 'PathJoinSubstitution'],
+         'launch_ros': [], 'launch_ros.actions': ['Node'],
+         'launch_ros.substitutions': ['FindPackageShare']}
+
+
+class Recorded:
+    """A stub launch class: keeps its arguments; equal to one made with the same."""
+
+    def __init__(self, *args, **kwargs):
+        self.args, self.kwargs = args, kwargs
+
+    def __eq__(self, other):
+        return type(self) is type(other) and (self.args, self.kwargs) == (other.args,
+                                                                          other.kwargs)
+
+    def __repr__(self):
+        return f'{type(self).__name__}{self.args}{self.kwargs}'
+
+
+def load_launch_file():
+    spec = importlib.util.spec_from_file_location('camera_launch', LAUNCH_FILE)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture
+def stubbed(monkeypatch):
+    """The stub classes by name, installed in sys.modules as the launch packages."""
+    classes = {}
+    for module_name, names in STUBS.items():
+        module = types.ModuleType(module_name)
+        for name in names:
+            classes[name] = module.__dict__[name] = type(name, (Recorded,), {})
+        monkeypatch.setitem(sys.modules, module_name, module)
+    return classes
+
+
+def used_configurations(value, stub):
+    """Names of the LaunchConfigurations anywhere inside ``value``."""
+    if isinstance(value, stub):
+        return {value.args[0]}
+    if isinstance(value, Recorded):
+        value = [*value.args, *value.kwargs.values()]
+    if isinstance(value, dict):
+        value = list(value.values())
+    if isinstance(value, (list, tuple)):
+        return set().union(*(used_configurations(v, stub) for v in value))
+    return set()
+
+
+def test_camera_launch_chains_tracker_and_node_in_one_namespace(stubbed):
+    description = load_launch_file().generate_launch_description()
+    assert isinstance(description, stubbed['LaunchDescription'])
+    entities = description.args[0]
+    declared = {e.args[0]: e.kwargs['default_value'] for e in entities
+                if isinstance(e, stubbed['DeclareLaunchArgument'])}
+    assert set(declared) == ARGUMENTS
+    assert used_configurations(entities, stubbed['LaunchConfiguration']) == ARGUMENTS
+    config = stubbed['LaunchConfiguration']
+    share = stubbed['FindPackageShare']('grass_nrsfm_ros')
+    for argument, name in (('tracker_params_file', 'tracker.yaml'),
+                           ('params_file', 'params.yaml')):
+        assert declared[argument] == stubbed['PathJoinSubstitution']([share, 'config', name])
+        assert (REPO / 'config' / name).is_file()
+    nodes = {n.kwargs['executable']: n.kwargs for n in entities
+             if isinstance(n, stubbed['Node'])}
+    tracker, node = nodes['tracker'], nodes['node']
+    assert tracker['package'] == node['package'] == 'grass_nrsfm_ros'
+    assert tracker['name'] == tracker_params.TRACKER_NODE_NAME
+    assert node['name'] == params.NODE_NAME
+    assert tracker['namespace'] == node['namespace'] == config('namespace')
+    assert dict(tracker['remappings']) == {'image': config('image'),
+                                           'camera_info': config('camera_info')}
+    assert 'remappings' not in node        # 'tracks' is the tracker's output, in the namespace
+    assert tracker['parameters'] == [config('tracker_params_file')]
+    assert node['parameters'] == [config('params_file')]
+    assert nodes['rviz2']['condition'] == stubbed['IfCondition'](config('rviz'))
+    assert declared['rviz'] == 'false' and declared['image'] == 'image'
+
+
+def test_default_tracker_params_apply_in_any_namespace():
+    """config/tracker.yaml's key is /**/<tracker>: a bare node name would leave a namespaced
+    tracker (camera.launch.py's namespace) on its defaults."""
+    data = yaml.safe_load((REPO / 'config' / 'tracker.yaml').read_text())
+    assert list(data) == [f'/**/{tracker_params.TRACKER_NODE_NAME}']
+    assert set(data[f'/**/{tracker_params.TRACKER_NODE_NAME}']['ros__parameters']) == \
+        {p.name for p in tracker_params.TRACKER_PARAMS}
+
+
+def test_camera_launch_with_the_real_launch_packages():
+    launch = pytest.importorskip('launch')
+    pytest.importorskip('launch_ros')
+    description = load_launch_file().generate_launch_description()
+    assert isinstance(description, launch.LaunchDescription)
+    assert {a.name for a in description.get_launch_arguments()} == ARGUMENTS
