@@ -16,6 +16,7 @@ COMMANDS = {
     'evaluate': 'Print e3D of a reconstruction against ground truth.',
     'node': 'Start the ROS 2 node (same as `ros2 run grass_nrsfm_ros node`).',
     'tracker': 'Start the tracker node, images to tracks (`ros2 run grass_nrsfm_ros tracker`).',
+    'track': 'Dense 2D tracks of a folder of images, a video or a bag, into an .npz or a bag.',
     'replay': 'Publish the tracks topic of a bag with its original timing.',
     'convert': 'Turn an .npz with W (and optional S) into a tracks bag.',
     'recover': 'Rebuild a killed recording (no metadata, no index) into a readable bag.',
