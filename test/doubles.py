@@ -2,11 +2,13 @@
 pytest puts test/ on the path, and the node tests' launch strings run from test/).
 
 Inputs: :func:`bending_sheet` (``W: (2F, P)`` pixels, ``S: (3F, P)``, ``ids: (P,)``),
-:func:`random_rotations` (``(F, 3, 3)``). A real rigid solver, :class:`RigidALS` (it takes
-``grass_nrsfm_ros.nrsfm.WarmStart`` and reports ``rotation_method='rigid'``, so the mapper's
-default 'resume' warm start resumes it), which the node and pipeline tests inject in place of
-GrassmannNRSfM; solvers that misbehave (NaN, slow, not cancellable, failing, crashing);
-stand-ins with the solver's or the pipeline's protocol.
+:func:`random_rotations` (``(F, 3, 3)``); :func:`frames_of` and :func:`stacked` (frames in,
+FrameResults out as ``(3F, P)``); :func:`wait_until`, the polling helper. A real rigid
+solver, :class:`RigidALS` (it takes ``grass_nrsfm_ros.nrsfm.WarmStart`` and reports
+``rotation_method='rigid'``, so the mapper's default 'resume' warm start resumes it), which
+the node and pipeline tests inject in place of GrassmannNRSfM; solvers that misbehave (NaN,
+slow, not cancellable, failing, crashing); stand-ins with the solver's or the pipeline's
+protocol.
 """
 import os
 from pathlib import Path
@@ -48,6 +50,31 @@ def bending_sheet(F=60, P=200, *, bend=0.15, noise=0.0, seed=0):
     W = W + noise * rng.standard_normal(W.shape)
     ids = rng.permutation(10 * P)[:P].astype(np.uint32) + 5
     return W.reshape(2 * F, P), S.reshape(3 * F, P), ids
+
+
+def frames_of(W, ids):
+    """``[(ids, uv: (P, 2))]``, one per frame of ``W: (2F, P)``: what the pipeline takes."""
+    return [(ids, uv.T) for uv in as_frames(W, 2)]
+
+
+def stacked(results, ids=None):
+    """``(3F, P)`` from FrameResults (anything with ``ids: (P,)`` and ``xyz: (P, 3)``) in their
+    order; columns in the order of ``ids`` (None: as each result has them)."""
+    if ids is None:
+        return np.vstack([r.xyz.T for r in results])
+    return np.vstack([r.xyz[np.argsort(r.ids)][np.searchsorted(np.sort(r.ids), ids)].T
+                      for r in results])
+
+
+def wait_until(condition, timeout=60.0):
+    """Poll ``condition()`` until it holds (True) or ``timeout`` s pass (False): the one polling
+    helper for what gives no event to wait on (another process's state)."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.02)
+    return True
 
 
 # -- a real rigid solver (the node tests inject it) --------------------------------------------
