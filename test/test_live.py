@@ -1,16 +1,19 @@
-"""Live tracking: nrsfm.tracking against exact models, and LivePipeline (tracking + mapping)
-against a real rigid solver and the Grassmannian one."""
+"""Live tracking: nrsfm.tracking against exact models, ShapeTracking, and LivePipeline
+(tracking + mapping) against a real rigid solver and the Grassmannian one."""
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from doubles import bending_sheet as make_sequence, RigidALS, RigidWarmStart
-from grass_nrsfm_ros.live import bootstrap_model, LivePipeline, reconstruct_live
+from doubles import bending_sheet as make_sequence, frames_of, RigidALS, stacked
+from grass_nrsfm_ros.mapper import make_mapper, Mapper
 from grass_nrsfm_ros.nrsfm import tracking
 from grass_nrsfm_ros.nrsfm.measurement import as_frames
 from grass_nrsfm_ros.nrsfm.metrics import e3d
 from grass_nrsfm_ros.nrsfm.synthetic import make_sequence as make_surface
-from grass_nrsfm_ros.pipeline import Frame, reconstruct_sequence, SlidingWindow
+from grass_nrsfm_ros.pipeline import make_pipeline, reconstruct_live
+from grass_nrsfm_ros.refinement import Refinement
+from grass_nrsfm_ros.shape_tracking import bootstrap_model, ShapeTracking
+from grass_nrsfm_ros.windowing import Frame, Windowing
 
 
 def random_rotation(rng):
@@ -230,34 +233,44 @@ def test_the_rotation_stays_a_rotation_over_many_model_swaps():
 
 
 # -- LivePipeline -------------------------------------------------------------------------------
-def live(output='live', **window_kwargs):
-    window_kwargs.setdefault('warm_start_class', RigidWarmStart)
-    return LivePipeline(SlidingWindow(RigidALS, **window_kwargs), output=output)
+def live(solver=RigidALS, **config):
+    """An inline LivePipeline with ``solver``, ``refined_from: first_window`` and ``config``."""
+    return make_pipeline({'refined_from': 'first_window', **config}, solver)
 
 
-def frames_of(W, ids):
-    return [(ids, uv.T) for uv in as_frames(W, 2)]
+def sliding_windows(W, ids, solver=RigidALS, **config):
+    """The windows' FrameResults of ``W: (2F, P)`` without the tracking: the windowing, the
+    mapper and the refinement the pipeline wires, driven directly."""
+    p = live(solver, **config)
+    windowing, mapper, refinement = p.windowing, p.backend.mapper, p.refinement
+    out, windows = [], []
+    for f, (fid, uv) in enumerate(frames_of(W, ids)):
+        windows += windowing.push(windowing.accept(f, fid, uv))
+    for window in windows + windowing.flush():
+        refinement.expect(window)
+        out += refinement.take(mapper.solve(window))
+    return out, mapper
 
 
 def test_every_frame_is_published_on_arrival_and_refined_once():
     W, S, ids = make_sequence(F=60, P=150)
     pipe = live()
+    refined = []
     for f, (fid, uv) in enumerate(frames_of(W, ids)):
-        step = pipe.add_frame(f, fid, uv, 'cam')
-        assert [r.stamp_ns for r in step.points] == [f]          # at once, this frame
-        for window in step.windows:
-            assert pipe.solve(window).points == ()
-    points, refined = reconstruct_live(live(), np.arange(60), frames_of(W, ids))
+        points = pipe.add_frame(f, fid, uv, 'cam')
+        assert [r.stamp_ns for r in points] == [f]               # at once, this frame
+        refined += pipe.refined()[0]
+    assert [r.stamp_ns for r in refined] == list(range(60))
+    assert pipe.tracking.stats['first_model_after'] == 30
+    points, refined, _ = reconstruct_live(live(), np.arange(60), frames_of(W, ids))
     assert [r.stamp_ns for r in points] == list(range(60))
     assert [r.stamp_ns for r in refined] == list(range(60))
-    assert pipe.stats['first_model_after'] == 30
 
 
 def test_refined_output_is_the_windows_output_and_tracking_follows_the_rigid_model():
     W, S, ids = make_sequence(F=60, P=150, bend=0.0)                 # rigid: exact for RigidALS
-    points, refined = reconstruct_live(live(), np.arange(60), frames_of(W, ids))
-    windows = reconstruct_sequence(SlidingWindow(RigidALS, warm_start_class=RigidWarmStart),
-                                   np.arange(60), frames_of(W, ids))
+    points, refined, _ = reconstruct_live(live(), np.arange(60), frames_of(W, ids))
+    windows, _ = sliding_windows(W, ids)
     # the same frames, up to one depth sign for the whole sequence (the first model keeps
     # the orientation the bootstrap published)
     sign = np.sign(np.dot(refined[0].xyz[:, 2], windows[0].xyz[:, 2]))
@@ -265,45 +278,42 @@ def test_refined_output_is_the_windows_output_and_tracking_follows_the_rigid_mod
         np.testing.assert_array_equal(a.xyz, b.xyz * [1, 1, sign])
     tracked = np.vstack([r.xyz.T for r in points[30:]])          # tracks in id order
     assert e3d(tracked, S[90:, np.argsort(ids)]) < 1e-4
-    only_windows = live('windows')
-    out, none = reconstruct_live(only_windows, np.arange(60), frames_of(W, ids))
-    assert none == [] and all(np.array_equal(a.xyz, b.xyz) for a, b in zip(out, windows))
 
 
 def test_refined_from_the_last_window_waits_for_each_frames_third_solve():
     W, S, ids = make_sequence(F=60, P=150, bend=0.1)
     pipe = live(refined_from='last_window')
     got, results = [], {}
-    solve = pipe.solve
-
-    def keep(window, progress=None):
-        step = solve(window, progress)
-        results.update({r.stamp_ns: r for r in step.refined})
-        got.append(([r.stamp_ns for r in step.refined], pipe.previous))
-        return step
-    pipe.solve = keep
-    _, refined = reconstruct_live(pipe, np.arange(60), frames_of(W, ids))
+    for f, (fid, uv) in enumerate(frames_of(W, ids)):
+        pipe.add_frame(f, fid, uv)
+        refined, updates = pipe.refined()
+        results.update({r.stamp_ns: r for r in refined})
+        got += [([r.stamp_ns for r in refined], pipe.backend.mapper.previous)] * len(updates)
+    pipe.flush()
+    refined, updates = pipe.refined()
+    results.update({r.stamp_ns: r for r in refined})
+    got += [([r.stamp_ns for r in refined], pipe.backend.mapper.previous)] * len(updates)
     # windows 0-29, 10-39 (context 0-9), 20-49 (context 0-19), 30-59, then the flush
     assert [stamps for stamps, _ in got] == [[], [], list(range(30)), list(range(30, 40)),
                                              list(range(40, 60))]
-    assert pipe.windows.stats['solved'] == 4                 # the flush solved nothing again
-    assert [r.stamp_ns for r in refined] == list(range(60))
+    assert pipe.refinement.stats['solved'] == 4             # the flush solved nothing again
+    assert sorted(results) == list(range(60))
     # each frame from its latest solve: frame 0 from the third, 45 from the fourth
     for stamp, solution in ((0, got[2][1]), (45, got[3][1])):
         at = list(solution.stamps).index(stamp)
         z = as_frames(solution.S, 3)[at, 2]
         np.testing.assert_allclose(results[stamp].xyz[:, 2], z - z.mean(), atol=1e-12)
-    stats = pipe.windows.stats
-    assert stats['frames'] == stats['published'] + stats['frames_lost'] == 60
+    assert pipe.windowing.stats['frames'] == \
+        pipe.refinement.stats['published'] + pipe.frames_lost == 60
 
 
 def test_refined_from_the_last_window_loses_no_frame_without_context():
     W, S, ids = make_sequence(F=60, P=150, bend=0.1)
     pipe = live(refined_from='last_window', context_frames=0)
-    _, refined = reconstruct_live(pipe, np.arange(60), frames_of(W, ids))
+    _, refined, _ = reconstruct_live(pipe, np.arange(60), frames_of(W, ids))
     # frames 0-9 are in no later window: out with the second, from the first window's solve
     assert [r.stamp_ns for r in refined] == list(range(60))
-    assert pipe.windows.stats['frames_lost'] == 0
+    assert pipe.frames_lost == 0
 
 
 def test_refined_from_the_last_window_is_more_accurate():
@@ -314,10 +324,10 @@ def test_refined_from_the_last_window_is_more_accurate():
         seq = make_surface(kind, n_frames=50, n_points=300, seed=0)
         errors = {}
         for refined_from in ('first_window', 'last_window'):
-            pipe = LivePipeline(SlidingWindow(refined_from=refined_from))
-            _, refined = reconstruct_live(pipe, np.arange(50), frames_of(seq.W, ids))
+            pipe = make_pipeline({'refined_from': refined_from})
+            _, refined, _ = reconstruct_live(pipe, np.arange(50), frames_of(seq.W, ids))
             assert [r.stamp_ns for r in refined] == list(range(50))
-            errors[refined_from] = e3d(np.vstack([r.xyz.T for r in refined]), seq.S)
+            errors[refined_from] = e3d(stacked(refined), seq.S)
         assert errors['last_window'] < 0.5 * errors['first_window'], (kind, errors)
 
 
@@ -335,10 +345,8 @@ def test_tracks_joining_and_leaving_mid_sequence():
     out = []
     for f, (fid, uv) in enumerate(frames_of(W, ids)):
         keep = np.arange(200) < 150 if f < 40 else np.arange(200) >= 20     # 20 leave, 50 join
-        step = pipe.add_frame(f, fid[keep], uv[keep])
-        out += step.points
-        for window in step.windows:
-            pipe.solve(window)
+        out += pipe.add_frame(f, fid[keep], uv[keep])
+        pipe.refined()
     late = out[45]
     present = np.flatnonzero(np.arange(200) >= 20)
     assert sorted(late.ids) == sorted(ids[present])               # the gone ones are absent
@@ -358,24 +366,23 @@ def test_an_abrupt_change_is_reported_and_asks_for_a_fresh_window():
     pipe = live()
     residuals = []
     for f, (fid, uv) in enumerate(frames_of(W, ids)):
-        step = pipe.add_frame(f, ids, uv)
-        residuals.append(pipe.last['residual'])
-        for window in step.windows:
-            pipe.solve(window)
+        points = pipe.add_frame(f, ids, uv)
+        residuals.append(pipe.tracking.last['residual'])
+        pipe.refined()
         if f == 49:
-            assert pipe.stats['fresh_windows'] == 0
+            assert pipe.tracking.stats['fresh_windows'] == 0
     assert residuals[50] > 10 * np.median(residuals[35:50])
-    assert pipe.stats['fresh_windows'] >= 1
-    assert len(step.points) == 1                                    # still published
+    assert pipe.tracking.stats['fresh_windows'] >= 1
+    assert len(points) == 1                                         # still published
 
 
 def test_live_points_follow_the_windows_on_a_deforming_surface():
     seq = make_surface('bending', n_frames=50, n_points=300, seed=0)
     ids = np.arange(300, dtype=np.uint32)
-    points, refined = reconstruct_live(LivePipeline(SlidingWindow()), np.arange(50),
-                                       frames_of(seq.W, ids))
-    tracked = e3d(np.vstack([r.xyz.T for r in points[30:]]), seq.S[90:])
-    windows = e3d(np.vstack([r.xyz.T for r in refined[30:]]), seq.S[90:])
+    points, refined, _ = reconstruct_live(make_pipeline({'refined_from': 'first_window'}),
+                                          np.arange(50), frames_of(seq.W, ids))
+    tracked = e3d(stacked(points[30:]), seq.S[90:])
+    windows = e3d(stacked(refined[30:]), seq.S[90:])
     assert tracked < 1.5 * windows
     # one depth orientation across model swaps: consecutive tracked frames agree in sign
     z = np.stack([r.xyz[:, 2] for r in points[30:]])
@@ -390,23 +397,22 @@ def test_live_points_follow_the_windows_on_a_deforming_surface():
 
 
 def test_bad_parameters_are_refused():
-    with pytest.raises(ValueError, match='output'):
-        LivePipeline(SlidingWindow(RigidALS), output='fast')
     with pytest.raises(ValueError, match='residual_limit'):
-        LivePipeline(SlidingWindow(RigidALS), residual_limit=0.5)
+        ShapeTracking(residual_limit=0.5)
     with pytest.raises(ValueError, match='mapping_tracks'):
-        SlidingWindow(RigidALS, mapping_tracks=5)
+        Mapper(RigidALS, mapping_tracks=5)
+    with pytest.raises(ValueError, match='window_stride'):
+        Windowing(window_size=10, window_stride=11)
 
 
 def test_mapping_on_a_subset_of_tracks_fills_in_the_rest():
     seq = make_surface('bending', n_frames=40, n_points=600, seed=1)
     ids = np.arange(600, dtype=np.uint32)
-    full = reconstruct_sequence(SlidingWindow(), np.arange(40), frames_of(seq.W, ids))
-    cut = SlidingWindow(mapping_tracks=300)
-    part = reconstruct_sequence(cut, np.arange(40), frames_of(seq.W, ids))
+    full, _ = sliding_windows(seq.W, ids, None)
+    part, cut = sliding_windows(seq.W, ids, None, mapping_tracks=300)
     assert all(r.ids.size == 600 for r in part)
-    e_full = e3d(np.vstack([r.xyz.T for r in full]), seq.S)
-    e_part = e3d(np.vstack([r.xyz.T for r in part]), seq.S)
+    e_full = e3d(stacked(full), seq.S)
+    e_part = e3d(stacked(part), seq.S)
     assert e_part < 1.25 * e_full
     assert cut.previous.report is not None
 
@@ -415,11 +421,30 @@ def test_a_degenerate_frame_goes_out_flat_and_is_counted():
     W, S, ids = make_sequence(F=40, P=100, bend=0.0)
     pipe = live()
     for f, (fid, uv) in enumerate(frames_of(W, ids)):
-        step = pipe.add_frame(f, fid, uv)
-        for window in step.windows:
-            pipe.solve(window)
-    assert pipe.has_model and pipe.stats['tracking_failed'] == 0
-    step = pipe.add_frame(40, ids, np.full((100, 2), 7.0))         # every track coincides
-    (result,) = step.points
-    assert pipe.stats['tracking_failed'] == 1
+        pipe.add_frame(f, fid, uv)
+        pipe.refined()
+    assert pipe.tracking.has_model and pipe.tracking.stats['tracking_failed'] == 0
+    (result,) = pipe.add_frame(40, ids, np.full((100, 2), 7.0))    # every track coincides
+    assert pipe.tracking.stats['tracking_failed'] == 1
     assert np.array_equal(result.xyz, np.zeros((100, 3)))
+
+
+def test_a_reset_forgets_the_model_and_starts_a_new_sequence():
+    W, S, ids = make_sequence(F=45, P=100, bend=0.0)
+    pipe = live()
+    for f, (fid, uv) in enumerate(frames_of(W, ids)):
+        pipe.add_frame(f, fid, uv)
+        pipe.refined()
+    assert pipe.tracking.has_model
+    assert pipe.reset() == {'frames': 5, 'model': True}           # frames 40..44 in no window
+    assert not pipe.tracking.has_model and pipe.backend.mapper.previous is None
+    assert pipe.frames_lost == 5
+    pipe.add_frame(0, ids, frames_of(W, ids)[0][1])               # earlier stamps: a new one
+    assert pipe.windowing.sequence == 1
+
+
+def test_make_mapper_takes_the_windows_parameters_from_the_config():
+    mapper = make_mapper({'warm_start': 'model', 'context_frames': 20, 'refined_from':
+                          'last_window', 'window_size': 30, 'window_stride': 10}, RigidALS)
+    assert (mapper.warm_start, mapper.context_frames, mapper.refined_after) == ('model', 20, 3)
+    assert Refinement().refined_after == 1
