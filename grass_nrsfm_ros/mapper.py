@@ -168,6 +168,7 @@ class Mapper:
         self.previous = None            # Solution of the last solved window
         self._rotation_check = None     # (sequence, method, stamps) of the last full check
         self._resumed_rank = None       # Dai's rank of the rotations a resumed start gave
+        self.started_from = None        # the last solve's start: 'rigid', 'model', 'resumed'
         self._solves = (None, {})       # (sequence, {stamp: solves of that frame})
 
     def reset(self):
@@ -269,7 +270,8 @@ class Mapper:
     def _figures(self, seconds):
         """What the diagnostics show of the last solve."""
         report = self.previous.report
-        return dict(solve_seconds=seconds, iterations=getattr(report, 'iterations', ''),
+        return dict(solve_seconds=seconds, started_from=self.started_from,
+                    iterations=getattr(report, 'iterations', ''),
                     reprojection_residual=self.previous.residual,
                     tracks_thinned=getattr(report, 'thinned_points', ''))
 
@@ -347,9 +349,12 @@ class Mapper:
         ov = self._overlap(problem)
         self._resumed_rank = None
         if self.warm_start == 'resume' and self._resumable(problem, ov):
+            self.started_from = 'resumed'
             return self._resume_start(problem, ov)
         if not problem.n_context:
+            self.started_from = 'rigid'
             return rigid_start(problem.W)
+        self.started_from = 'model'
         groups = None
         if ov is not None and self.previous.groups is not None:
             groups = np.asarray(self.previous.groups)[self._donors(problem, ov)]
