@@ -58,7 +58,7 @@ def probe(W, S_gt, overrides):
     R = estimate_rotations(problem.Wn).R
     K_s, K_t, N_s, N_t = config.sizes(params, F, P, None)
     spatial = params['spatial'] and config.spatial_off_reason(params, K_s, N_s, P, None) is None
-    settings = config.admm_settings(params, F, P, None, 'plain', spatial)
+    settings = config.admm_settings(params, F, P, None, spatial)
     state = ProbedState(problem.Wn, R, initial_shapes(problem, R), settings)
     edges0 = state.t_edges.copy()
     timer, trace = Timer(), []

@@ -1,14 +1,12 @@
-"""Rotations and shape norm (issue 23): Dai's rotations against Organic Priors' ('op'), each with
-the plain nuclear norm and OP's weighted partial one ('weighted', with this package's penalty
-schedule and with OP's), on the mocap sets and the synthetic kinds.
+"""Rotations (issue 23): Dai's rotations against Organic Priors' ('op', bench/op_rotations.py),
+each with the solver's nuclear norm, on the mocap sets and the synthetic kinds.
 
 Per sequence and rotation method: the rotations' seconds, OP's diagnostics (the share of
 candidate samples its filter keeps), the rotation error against the truth where there is one
 (synthetic: degrees after one global alignment) and the angle between the two methods' rotations;
-per shape setting, Akhter e3D (mocap) or e3D (synthetic) of the whole-sequence fit, with the
-published R-BMM and OP numbers beside the mocap rows. Shape settings: plain, weighted (this
-package's penalty schedule), weighted_beta0 (beta0 1e-4), weighted_op_schedule (OP's schedule),
-weighted_op_alone (OP's schedule, no Grassmann branches, no smoothness: OP's shape step).
+Akhter e3D (mocap) or e3D (synthetic) of the whole-sequence fit, with the published R-BMM and
+OP numbers beside the mocap rows. OP's weighted partial norm (the 'weighted' rows of record
+archive/0501) left the solver with record 0430; its figures stay in that record.
 """
 import numpy as np
 
@@ -25,15 +23,8 @@ PUBLISHED_OP = {'drink': (0.0119, 0.0071), 'pickup': (0.0198, 0.0152),
                 'yoga': (0.0129, 0.0122), 'dance': (0.1491, 0.1209),
                 'face': (0.0179, 0.0145), 'shark': (0.0551, 0.0551)}
 MOCAP = ('drink', 'pickup', 'yoga', 'dance', 'face', 'shark')
-#: OP's penalty schedule (rho_0, lambda, rho_max; at most 340 iterations)
-OP_SCHEDULE = {'beta0': 1e-4, 'rho': 1.1, 'beta_max': 1e10, 'max_iter': 400}
-#: OP's shape step alone: OP's schedule, no Grassmann branches, no smoothness prior
-OP_ALONE = {'spatial': False, 'temporal': False, 'smoothness': 0.0}
-SHAPES = {'plain': {'nuclear': 'plain'},
-          'weighted': {'nuclear': 'weighted'},
-          'weighted_beta0': {'nuclear': 'weighted', 'beta0': 1e-4},
-          'weighted_op_schedule': {'nuclear': 'weighted', **OP_SCHEDULE},
-          'weighted_op_alone': {'nuclear': 'weighted', **OP_SCHEDULE, **OP_ALONE}}
+#: the shape settings (one: the solver's defaults; the JSON's 'shape' column)
+SHAPES = {'plain': {}}
 #: filter radii of the delta sweep (chordal; OP's is 0.05; 4 keeps every candidate), by mode
 DELTAS = {'quick': (4.0,), 'full': (0.2, 4.0)}
 ROTATIONS = {'dai': lambda W: estimate_rotations(W), 'op': lambda W: op_rotations(W)}
@@ -56,15 +47,6 @@ def cases(mode):
         yield f'synthetic_{kind}', 'synthetic', seq.W, seq.S, seq.R
 
 
-def shapes(mode, family, method):
-    """The shape settings run (quick: every one with Dai's rotations on mocap, two otherwise)."""
-    if mode.name == 'smoke':
-        return {'plain': SHAPES['plain']}
-    if mode.name == 'quick' and (family == 'synthetic' or method == 'op'):
-        return {k: SHAPES[k] for k in ('plain', 'weighted_op_schedule')}
-    return SHAPES
-
-
 def delta_sweep(name, W, S, dai, deltas):
     """OP's rotations with wider filters than OP's 0.05 (the samples of Dai's estimate
     ``dai``): how far they move from Dai's, and the plain solve's Akhter e3D with them."""
@@ -72,7 +54,7 @@ def delta_sweep(name, W, S, dai, deltas):
     samples, _ = op_samples(W, dai)
     for delta in deltas:
         R, kept, _ = average_within(samples, delta)
-        res = GrassmannNRSfM(nuclear='plain').fit(W, init=WarmStart(R=R))
+        res = GrassmannNRSfM().fit(W, init=WarmStart(R=R))
         rows.append({'sequence': name, 'delta': delta, 'kept_share': kept,
                      'angle_to_dai_deg': mean_angle(R, dai.R),
                      'e3d_akhter': e3d_akhter(res.S, S)})
@@ -113,7 +95,7 @@ def run(mode):
         if family == 'mocap' and mode.name != 'smoke':
             sweep += delta_sweep(name, W, S, dai, DELTAS[mode.name])
         for method, (R, rot_row) in rotations.items():
-            for shape, params in shapes(mode, family, method).items():
+            for shape, params in SHAPES.items():
                 common.log(f'rotations: {name} ({F} x {P}) {method} {shape}')
                 try:
                     res, wall, cpu = common.timed(GrassmannNRSfM(**params).fit, W,
@@ -134,8 +116,6 @@ def run(mode):
                       f" kept {row.get('kept_share', np.nan):.3f}", flush=True)
     return {'rows': rows, 'skipped': skipped, 'delta_sweep': sweep,
             'notes': ['rotations given to the solver as WarmStart(R=...) (the same as '
-                      "rotations='dai'/'op' on these inputs; no rotation check)",
-                      'weighted_op_schedule: beta0 1e-4, rho 1.1, beta_max 1e10 (OP Sec. 4a); '
-                      'weighted_op_alone: the same without Grassmann branches and smoothness',
+                      "rotations='dai' on these inputs; no rotation check)",
                       'rotation_error_deg: synthetic only (the mocap files carry no rotations)',
                       'published_rbmm / published_op: OP Tab. 2, Akhter metric']}

@@ -69,7 +69,7 @@ def test_schema_types_ranges_and_choices():
     with pytest.raises(ValueError, match=r'outside \(1.0'):           # rho > 1, open bound
         rho.check(1.0)
     assert specs['solver.random_state'].check(None) is None
-    assert specs['solver.nuclear'].group == 'research' and specs['solver.gamma'].group == 'solver'
+    assert specs['solver.spatial'].group == 'research' and specs['solver.gamma'].group == 'solver'
     assert params.solver_kwargs({'solver.gamma': 0.1, 'solver.K_s': None, 'window_size': 3}) \
         == {'gamma': 0.1}
 

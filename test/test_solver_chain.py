@@ -24,7 +24,7 @@ def admm_problem(F=20, P=400, kind='articulated'):
     # K_s = 4 groups regrouped every 10 iterations (346 moves): the resumed run crosses
     # regroupings, which reorder the stored columns
     params = dict(solver_defaults(), K_s=4)
-    settings = admm_settings(params, F, P, None, 'plain', spatial=True)
+    settings = admm_settings(params, F, P, None, spatial=True)
     return problem, R, settings
 
 
@@ -117,7 +117,8 @@ def test_fit_leaves_the_parameters_unchanged():
     assert est.get_params() == before and est.spatial is True
 
 
-@pytest.mark.parametrize('name', ['zeta_weight', 'local_rigidity', 'power_steps', 'eps'])
+@pytest.mark.parametrize('name', ['zeta_weight', 'local_rigidity', 'power_steps', 'eps',
+                                  'nuclear'])
 def test_deleted_options_are_refused(name):
     with pytest.raises(TypeError, match=name):
         GrassmannNRSfM(**{name: 1})
@@ -171,8 +172,7 @@ def test_temporal_bases_are_those_of_the_projected_sharp_shapes():
     """The temporal bases kept after an iteration (reused, not re-decomposed) are the block
     bases of S#'s Gram after zeta_t: the same subspaces and singular values."""
     problem, R, _ = admm_problem(F=24, P=300)
-    settings = admm_settings(dict(solver_defaults(), K_t=3), 24, 300, None, 'plain',
-                             spatial=False)
+    settings = admm_settings(dict(solver_defaults(), K_t=3), 24, 300, None, spatial=False)
     state = fresh_state(problem, R, settings)
     admm.run(state, iterations=8)
     assert state.K_t > 1 and any(v.shape[1] < e - b for (v, _), b, e in

@@ -15,7 +15,6 @@ self-expression coefficients.
 This module owns:
 
 * :class:`AdmmSettings`: the numbers of one solve (absolute gamma, sizes, switches);
-* :func:`partial_weights`: the weights of Organic Priors' weighted partial norm (``weighted``);
 * :class:`AdmmState`: the variables and one iteration (:meth:`AdmmState.iterate`);
 * :func:`stop_reason`: the stopping rule (every gap below GAP_TOLERANCE, or beta at beta_max);
 * :func:`run`: iterate until the rule says stop;
@@ -44,13 +43,6 @@ BLOCK_BYTES = 1 << 20
 #: storage of the (F, 3, P) iterates when F * P >= FLOAT32_MIN_SIZE
 STORAGE_DTYPE = np.float32
 FLOAT32_MIN_SIZE = 1 << 20
-#: weighted partial nuclear norm (Organic Priors): ``theta_i = xi / (sigma_i + OP_GAMMA)`` from
-#: the singular values of the pseudo-inverse S#, ``xi = OP_XI sqrt(sigma_1)``, the first
-#: OP_UNPENALISED values free, multiplier OP_MU (OP's constants, on unit-RMS tracks)
-OP_XI = 5e-3
-OP_GAMMA = 1e-6
-OP_UNPENALISED = 1
-OP_MU = 1.0
 #: the per-iteration fields of an AdmmState a checkpoint holds (besides settings-derived ones)
 STATE_ARRAYS = ('C_s', 'J_s', 'Y2', 'C_t', 'J_t', 'Y3', 'Omega_s', 'Omega_t', 't_edges')
 
@@ -58,9 +50,7 @@ STATE_ARRAYS = ('C_s', 'J_s', 'Y2', 'C_t', 'J_t', 'Y3', 'Omega_s', 'Omega_t', 't
 @dataclass(frozen=True)
 class AdmmSettings:
     """The numbers of one ADMM solve. ``gamma`` is absolute (on unit-RMS tracks); ``K_s``,
-    ``K_t``, ``N_s``, ``N_t`` are resolved integers; ``centred``: the nuclear norm acts on S#
-    less its mean row; ``weighted``: instead of ``gamma ||S#||_*``, Organic Priors' weighted
-    partial norm (:func:`partial_weights`); ``max_iter``: a cap on the iterations of
+    ``K_t``, ``N_s``, ``N_t`` are resolved integers; ``max_iter``: a cap on the iterations of
     :func:`run`."""
 
     gamma: float
@@ -79,30 +69,12 @@ class AdmmSettings:
     smoothness: float
     spatial: bool
     temporal: bool
-    centred: bool
     random_state: object
     max_iter: int
     K_s: int
     K_t: int
     N_s: int
     N_t: int
-    weighted: bool = False
-
-
-def partial_weights(Wn, R):
-    """Organic Priors' weights of the singular values of S# (descending): ``(min(F, 3P),)``.
-
-    From the pseudo-inverse world shapes ``R_f[:2]^T W_f`` of ``Wn: (2F, P)``, ``R: (F, 3, 3)``:
-    ``OP_MU xi / (sigma_i + OP_GAMMA)`` with ``xi = OP_XI sqrt(sigma_1)``, 0 for the first
-    OP_UNPENALISED (their shrinkage is the exact proximal step: the weights do not decrease).
-    """
-    F, P = R.shape[0], Wn.shape[1]
-    sharp = (R[:, :2, :].transpose(0, 2, 1) @ Wn.reshape(F, 2, P)).reshape(F, 3 * P)
-    gram = sharp @ sharp.T if F <= 3 * P else sharp.T @ sharp
-    sigma = np.sqrt(np.maximum(np.linalg.eigvalsh(gram)[::-1], 0.0))
-    theta = OP_MU * OP_XI * np.sqrt(sigma[0]) / (sigma + OP_GAMMA)
-    theta[:OP_UNPENALISED] = 0.0
-    return theta
 
 
 @dataclass
@@ -234,9 +206,7 @@ class AdmmState:
         F, P = R.shape[0], Wn.shape[1]
         s = settings
         self.F, self.P, self.s, self.R, self.smooth = F, P, s, R, smooth
-        self.centred, self.gamma = s.centred, s.gamma
-        # weighted: per-singular-value weights (ascending, as eigh orders the Gram) replace gamma
-        self.weights = partial_weights(Wn, R)[::-1].copy() if s.weighted else None
+        self.gamma = s.gamma
         self.K_t, self.N_s, self.N_t = s.K_t, s.N_s, s.N_t
         self.K_s = K_s = int(labels.max()) + 1
         self.order = order
@@ -440,70 +410,54 @@ class AdmmState:
         return B, bases
 
     def _shrink(self, G, beta):
-        """Eigenvectors of a Gram matrix and the SVT factors ``max(s - w/beta, 0) / s``, w the
-        singular value's weight (``gamma``, or the weighted norm's weights by rank)."""
+        """Eigenvectors of a Gram matrix and the SVT factors ``max(s - gamma/beta, 0) / s``."""
         vals, vecs = np.linalg.eigh(G)
         sv = np.sqrt(np.maximum(vals, 0.0))
-        w = self.gamma if self.weights is None else self.weights   # the Gram is min(F, 3P) wide
-        shrink = np.where(sv > 0, np.maximum(sv - w / beta, 0.0) / np.where(
+        shrink = np.where(sv > 0, np.maximum(sv - self.gamma / beta, 0.0) / np.where(
             sv > 0, sv, 1.0), 0.0)
         return vecs, shrink
 
-    def _nuclear(self, gram):
-        """The (weighted) nuclear norm of a matrix of Gram ``gram``, divided by gamma where
-        weighted so that ``gamma * value`` is the objective's term."""
-        return self._weighted_sum(np.sqrt(np.maximum(np.linalg.eigvalsh(gram), 0.0)))
+    @staticmethod
+    def _nuclear(gram):
+        """The nuclear norm of a matrix of Gram ``gram``."""
+        return float(np.sqrt(np.maximum(np.linalg.eigvalsh(gram), 0.0)).sum())
 
-    def _nuclear_of_factors(self, L, core):
+    @staticmethod
+    def _nuclear_of_factors(L, core):
         """:meth:`_nuclear` of the Gram ``L core L^T`` (``L: (F, r)``, ``core: (r, r)`` PSD, r
         small) through an ``(r, r)`` matrix with the Gram's nonzero eigenvalues."""
         vals, vecs = np.linalg.eigh(core)
         K = L @ (vecs * np.sqrt(np.maximum(vals, 0.0)))         # the Gram is K K^T
-        return self._weighted_sum(np.sqrt(np.maximum(np.linalg.eigvalsh(K.T @ K), 0.0)))
-
-    def _weighted_sum(self, sv):
-        """``sum(sv)``, or the weighted norm's ``sum(w_i sv_i) / gamma`` for the top singular
-        values ``sv`` (ascending; the rest zero)."""
-        if self.weights is None:
-            return float(sv.sum())
-        return float((self.weights[self.weights.size - sv.size:] * sv).sum()) / self.gamma
+        return float(np.sqrt(np.maximum(np.linalg.eigvalsh(K.T @ K), 0.0)).sum())
 
     def _sharp_operator(self, G, beta, it):
         """Wide case (F <= 3P), from the Gram ``G: (F, F)`` of X: ``S# = left right^T X``
-        with ``left, right: (F, r)`` (r: the singular values the SVT keeps, plus the mean row
-        where centred), the Gram of S# and the penalised norm. Applied as two thin products,
-        S# costs ``2 r / F`` of one ``F x F`` operator."""
-        F = G.shape[0]
-        H = np.eye(F) - 1.0 / F if self.centred else None
-        vecs, shrink = self._shrink(G if H is None else H @ G @ H, beta)
+        with ``left, right: (F, r)`` (r: the singular values the SVT keeps), the Gram of S# and
+        its nuclear norm. Applied as two thin products, S# costs ``2 r / F`` of one ``F x F``
+        operator."""
+        vecs, shrink = self._shrink(G, beta)
         kept = shrink > 0
         right = vecs[:, kept]                           # SVT: V diag(shrink) V^T, kept part
         left = right * shrink[kept]
-        if self.centred:        # SVT of H X (H: the centring over frames), the mean row kept
-            mean = np.full((F, 1), 1.0 / np.sqrt(F))
-            right = right - right.mean(axis=0)                  # H V
-            left, right = np.hstack([left, mean]), np.hstack([right, mean])
         core = right.T @ G @ right                      # Gram of S#: left core left^T
         G1 = left @ core @ left.T
         if self.s.temporal:
             B, self.t_bases = self._temporal(G1, beta, it)
             left = B @ left
             G1 = left @ core @ left.T
-        penalised = left if H is None else H @ left
-        return (left, right), G1, self._nuclear_of_factors(penalised, core)
+        return (left, right), G1, self._nuclear_of_factors(left, core)
 
     def _sharp_tall(self, X, beta, it):
         """Tall case (F > 3P): S# of ``X: (F, 3P)`` through the ``3P x 3P`` Gram."""
-        mean = X.mean(axis=0, keepdims=True) if self.centred else 0.0
-        vecs, shrink = self._shrink((X - mean).T @ (X - mean), beta)
-        Z = (X - mean) @ ((vecs * shrink) @ vecs.T) + mean          # = M X
+        # a general product, not numpy's symmetric one for X.T @ X: the rounding it always had
+        vecs, shrink = self._shrink(X.T @ X.copy(), beta)
+        Z = X @ ((vecs * shrink) @ vecs.T)                          # = M X
         G1 = Z @ Z.T
         if self.s.temporal:
             B, self.t_bases = self._temporal(G1, beta, it)
             Z = B @ Z
             G1 = Z @ Z.T
-        penalised = Z - Z.mean(axis=0, keepdims=True) if self.centred else Z
-        return Z, G1, self._nuclear(penalised.T @ penalised)
+        return Z, G1, self._nuclear(Z.T @ Z)
 
     # sweep 2: S#, gap and Y1 ---------------------------------------------------------------------
     def _sweep_multipliers(self, beta, op=None, sharp=None):

@@ -42,10 +42,10 @@ def spatial_off_reason(params, K_s, N_s, P, groups):
             f'{POINTS_PER_GROUP * (N_s + 1)} points')
 
 
-def admm_settings(params, F, P, groups, nuclear, spatial, resumed=False):
-    """The :class:`AdmmSettings` of a solve of ``F`` frames and ``P`` tracks with the norm
-    ``nuclear`` ('centred', 'plain' or 'weighted') and the spatial branch on or off;
-    ``resumed``: the solve resumes an overlapping solution (it stops at resumed_beta_max)."""
+def admm_settings(params, F, P, groups, spatial, resumed=False):
+    """The :class:`AdmmSettings` of a solve of ``F`` frames and ``P`` tracks with the spatial
+    branch on or off; ``resumed``: the solve resumes an overlapping solution (it stops at
+    resumed_beta_max)."""
     K_s, K_t, N_s, N_t = sizes(params, F, P, groups)
     return AdmmSettings(
         gamma=params['gamma'] * np.sqrt(F * P), lambda1=params['lambda1'],
@@ -55,6 +55,5 @@ def admm_settings(params, F, P, groups, nuclear, spatial, resumed=False):
         beta0=params['beta0'], beta_max=params['resumed_beta_max' if resumed else 'beta_max'],
         warm_beta0=params['warm_beta0'],
         smoothness=params['smoothness'], spatial=spatial, temporal=params['temporal'],
-        centred=nuclear == 'centred', random_state=params['random_state'],
-        max_iter=params['max_iter'], K_s=K_s, K_t=K_t, N_s=N_s, N_t=N_t,
-        weighted=nuclear == 'weighted')
+        random_state=params['random_state'], max_iter=params['max_iter'], K_s=K_s, K_t=K_t,
+        N_s=N_s, N_t=N_t)

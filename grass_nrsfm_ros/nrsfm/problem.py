@@ -38,8 +38,8 @@ class SolverReport:
     """What the solver did; every number refers to the run that produced it.
 
     ``stages``: the stages that ran, in order; ``solves``: one ``(reason, F, P, iterations)``
-    per ADMM solve made (the rotation check's, the shape solve, the refinement's and the
-    registration's re-solves)."""
+    per ADMM solve made (the rotation check's, the shape solve and the registration's
+    re-solve)."""
     iterations: int = 0
     converged: bool = False
     reason: str = ''
@@ -61,7 +61,6 @@ class SolverReport:
     inextensible: bool = False                   # inextensible depths replaced the solver's
     rotations_registered: bool = False           # R re-estimated from the refined shapes, kept
     thinned_points: int = 0                      # tracks left out of the solve, filled in
-    nuclear: str = None                          # 'centred' or 'plain': the norm of the result
     fallback: str = None
     notes: list = field(default_factory=list)    # automatic decisions worth knowing
     stages: list = field(default_factory=list)

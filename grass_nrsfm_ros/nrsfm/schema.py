@@ -6,8 +6,8 @@ every reader (the estimator's validation, the ROS descriptors, ``config/params.y
 config, the README's table) takes range, choices and description from them.
 
 ``group``: 'node' (the ROS node and the windowed pipeline), 'solver' (everyday solver
-parameters) or 'research' (switches no default uses: ablations, the centred nuclear norm, an
-iteration cap for short runs).
+parameters) or 'research' (switches no default uses: ablations, an iteration cap for short
+runs).
 """
 from dataclasses import dataclass
 import math
@@ -191,13 +191,6 @@ SOLVER_PARAMS = (
     Param('random_state', 0, None, 'Seed for the k-means++ grouping and the rotation step.',
           range=(0, INT_MAX), group='solver', number=int, nullable=True),
     # research switches: no default uses them
-    _mode('nuclear', 'plain', ('auto', 'centred', 'plain', 'weighted'),
-          "'plain': the nuclear norm acts on S# (the paper); 'centred': on S# less its mean row "
-          "(only the deformations are shrunk); 'weighted': Organic Priors' weighted partial "
-          'norm (the first singular value free, the others weighted by xi / (sigma_i + 1e-6) '
-          "from the pseudo-inverse shapes; gamma unused); 'auto': centred, but plain with the "
-          'rigid rotations, from given shapes, or when the centred solve takes the inextensible '
-          'depths.', group='research'),
     Param('spatial', True, bool, 'Use the spatial Grassmann branch (C_s, xi_s, zeta_s); '
           'False: ablation.', group='research'),
     Param('temporal', True, bool, 'Use the temporal Grassmann branch (C_t, xi_t, zeta_t); '

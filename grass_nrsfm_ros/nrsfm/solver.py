@@ -95,15 +95,14 @@ class GrassmannNRSfM:
     @staticmethod
     def _registered(problem, params, first, progress):
         """The stage 'registration': the shape pass again with the rotations registered to
-        ``first``'s shapes (its norm kept), then the better of the two."""
+        ``first``'s shapes, then the better of the two."""
         start, timer = time.perf_counter(), Timer()
         again = problem.with_rotations(registration.rotations(first))
         report = SolverReport(stages=first.report.stages + [registration.NAME],
                               solves=list(first.report.solves))
         report.stages.append(rotations.NAME)
         R = rotations.run(again, params, report)
-        second = shape_pass(again, R, dict(params, nuclear=first.report.nuclear), report, timer,
-                            progress, reason='registration')
+        second = shape_pass(again, R, params, report, timer, progress, reason='registration')
         report.seconds = dict(timer.seconds, total=time.perf_counter() - start)
         return registration.run(problem, params, first, second, time.perf_counter() - start)
 
@@ -131,20 +130,12 @@ def shape_pass(problem, R, params, report, timer=None, progress=None, reason='sh
     report.K_s, report.K_t, report.N_s, report.N_t = K_s, K_t, N_s, N_t
     report.gamma = params['gamma'] * np.sqrt(F * P)
     report.warm_started_frames = int(solved.known.sum()) if solved.warm else 0
-    report.nuclear = first_nuclear(params['nuclear'], report, solved)
-    S, state = admm_solve(solved, R, params, spatial, report.nuclear, report, timer, progress,
-                          reason)
+    S, state = admm_solve(solved, R, params, spatial, report, timer, progress, reason)
 
     t = time.perf_counter()
     if refinement.applies(solved, params):
         report.stages.append(refinement.NAME)
         check = refinement.check(S, solved.W, params)
-        if refinement.prefers_plain(check, params, report.nuclear, report):
-            report.nuclear = 'plain'
-            S, state = admm_solve(solved, R, params, spatial, 'plain', report, timer, progress,
-                                  'refinement: plain nuclear norm')
-            t = time.perf_counter()
-            check = refinement.check(S, solved.W, params)
         S = refinement.run(S, R, solved.W, params, check, report)
         t = timer.add('inextensible', t)
 
@@ -158,19 +149,6 @@ def shape_pass(problem, R, params, report, timer=None, progress=None, reason='sh
                        C_t=state.C_t.copy())
 
 
-def first_nuclear(nuclear, report, problem):
-    """The norm of the first shape solve: 'auto' is centred, but plain with the rigid
-    factorisation's rotations or from given shapes (the centred solve stays near its start)."""
-    if nuclear != 'auto':
-        return nuclear
-    why = ('rigid rotations' if report.rotation_method == 'rigid' else
-           'initial shapes given' if problem.warm else None)
-    if why:
-        report.notes.append(f'nuclear norm: plain (auto; {why})')
-        return 'plain'
-    return 'centred'
-
-
 def smoothed(problem, params):
     """Whether the ADMM of ``problem`` takes the temporal smoothness prior: cold solves, and
     resumed ones where the inextensible refinement does not apply (sparse tracks); not from
@@ -180,13 +158,13 @@ def smoothed(problem, params):
     return problem.init.resumed and not refinement.applies(problem, params)
 
 
-def admm_solve(problem, R, params, spatial, nuclear, report, timer, progress, reason):
-    """One run of Algorithm 1 from the problem's initial shapes with the norm ``nuclear``.
+def admm_solve(problem, R, params, spatial, report, timer, progress, reason):
+    """One run of Algorithm 1 from the problem's initial shapes.
     Fills the report's iteration fields and adds ``(reason, F, P, iterations)`` to
     ``report.solves``; returns ``(S_cam: (3F, P) in W's units, the spent AdmmState)``."""
     t = time.perf_counter()
     F, P = R.shape[0], problem.Wn.shape[1]
-    settings = config.admm_settings(params, F, P, problem.groups, nuclear, spatial,
+    settings = config.admm_settings(params, F, P, problem.groups, spatial,
                                     resumed=problem.init.resumed)
     state = AdmmState(problem.Wn, R, initial_shapes(problem, R), settings, problem.groups,
                       warm=problem.warm, beta=settings.beta0 if problem.init.resumed else None,

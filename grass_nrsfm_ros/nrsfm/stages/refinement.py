@@ -3,12 +3,8 @@ inextensible (:func:`..inextensible.refine_depth`: edge lengths from the longest
 lengths, signs re-estimated from the world shapes), kept when that cuts the variation of the
 3D edge lengths below INEXTENSIBLE_RATIO of the solver's ('auto') or always ('always').
 
-With nuclear='auto', a centred solve whose shapes would take the inextensible depths (a
-surface that bends without stretching) is solved again with the plain norm first.
-
 Speaks ``S: (3F, P)`` camera frame, ``W: (2F, P)``, ``R: (F, 3, 3)``.
-Report: ``inextensible``, ``nuclear`` (when 'auto' switches), notes with the edge-length
-variations.
+Report: ``inextensible``, a note with the edge-length variations.
 """
 from dataclasses import dataclass
 
@@ -61,19 +57,6 @@ def check(S, W, params):
     before, after = info['length_variation_before'], info['length_variation_after']
     ratio = after / before if before > 0 else 1.0
     return Check(before, after, ratio, idx.size, mode == 'always' or ratio < INEXTENSIBLE_RATIO)
-
-
-def prefers_plain(result, params, nuclear, report):
-    """nuclear='auto' on a centred solve whose :class:`Check` ``result`` uses the depths: the
-    surface bends without stretching, the plain norm is solved instead (noted)."""
-    if params['nuclear'] != 'auto' or nuclear != 'centred':
-        return False
-    c = result
-    report.notes.append(
-        f"nuclear norm: {'plain' if c.used else 'centred'} (auto; the centred solve's "
-        f'edge-length variation {c.before:.4f} -> {c.after:.4f} with inextensible depths on '
-        f'{c.tracks} tracks, ratio {c.ratio:.2f}, threshold {INEXTENSIBLE_RATIO:g})')
-    return c.used
 
 
 def run(S, R, W, params, result, report):

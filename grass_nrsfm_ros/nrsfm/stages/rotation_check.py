@@ -20,7 +20,7 @@ NAME = 'rotation check'
 CHECK_POINTS = 500
 #: the parameters of the scoring solves
 CHECK_PARAMS = {'rotations': 'dai', 'spatial': False, 'temporal': False,
-                'inextensible': 'never', 'nuclear': 'plain'}
+                'inextensible': 'never'}
 
 
 def applies(problem, params):
