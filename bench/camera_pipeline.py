@@ -154,7 +154,9 @@ def start_node(launch, args, env, log):
 
 
 def run(seconds=20.0, step=8, method=None, solver='grassmann', encoding='rgb8',
-        size=(480, 640), rate=30.0, frames=45, log=common.log):
+        size=(480, 640), rate=30.0, frames=45, image_depth=None, log=common.log):
+    """Run the pipeline once; return the figures. ``image_depth``: the tracker's image
+    history (None: its default, 5)."""
     tmp = Path(tempfile.mkdtemp(prefix='grass_camera_'))
     env = isolated_env(tmp)
     log(f'rendering {frames} frames of {size[1]} x {size[0]}')
@@ -163,6 +165,9 @@ def run(seconds=20.0, step=8, method=None, solver='grassmann', encoding='rgb8',
     tracker_args = ['-p', f'step:={step}', '-p', f'mask:={tmp / "mask.png"}']
     if method:
         tracker_args += ['-p', f'method:={method}']
+    if image_depth:
+        tracker_args += ['-p', f'qos_overrides.{NAMESPACE}/image.subscription.depth:='
+                         f'{image_depth}']
     procs = [start_node(TRACKER_LAUNCH, tracker_args, env, tmp / 'tracker.log'),
              start_node(rosutil.RIGID_LAUNCH if solver == 'rigid' else DEFAULT_LAUNCH,
                         ['-p', 'context_frames:=0'] if solver == 'rigid' else [], env,
@@ -202,7 +207,8 @@ def run(seconds=20.0, step=8, method=None, solver='grassmann', encoding='rgb8',
     tracks_back = sum(s in endpoint.tracks_at for s in sent)
     return dict(
         seconds=seconds, rate=rate, size=list(size), encoding=encoding, step=step,
-        method=method or 'default', solver=solver, sent=n_total,
+        method=method or 'default', solver=solver, image_depth=image_depth or 5,
+        sent=n_total,
         sends_late_by_more_than_a_period=late,
         tracks_back=tracks_back, points_back=points_back,
         share_points_back=round(points_back / n_total, 4),
@@ -231,11 +237,13 @@ def main(argv=None):
     parser.add_argument('--solver', choices=('grassmann', 'rigid'), default='grassmann')
     parser.add_argument('--encoding', choices=('rgb8', 'mono8'), default='rgb8')
     parser.add_argument('--size', type=int, nargs=2, default=(480, 640), metavar=('H', 'W'))
+    parser.add_argument('--image-depth', type=int, default=None,
+                        help="the tracker's image history (its default: 5)")
     parser.add_argument('--key', default='camera_pipeline',
                         help='key in bench/results/camera_pipeline.json')
     args = parser.parse_args(argv)
     figures = run(args.seconds, args.step, args.method, args.solver, args.encoding,
-                  tuple(args.size))
+                  tuple(args.size), image_depth=args.image_depth)
     common.merge_result(RESULTS, args.key,
                         common.jsonable({'environment': common.environment(), **figures}))
     print(json.dumps(figures, indent=1))
