@@ -44,7 +44,7 @@ def to_stamp(ns):
 
 
 def spin(make_node, args=None, name='grass_nrsfm node'):
-    """Run ``make_node()`` until Ctrl-C / SIGTERM, then ``close()`` and destroy it; returns the
+    """Run ``make_node()`` until Ctrl-C / SIGTERM, then close (if it can) and destroy it; the
     exit code (2: invalid parameters, ValueError or ParameterException from ``make_node``).
 
     Ctrl-C / SIGTERM set a flag the spin loop reads (at most SPIN_PERIOD_S later): rclpy's own
@@ -70,7 +70,8 @@ def spin(make_node, args=None, name='grass_nrsfm node'):
         pass
     finally:
         if node is not None:
-            node.close()
+            if hasattr(node, 'close'):
+                node.close()
             node.destroy_node()
         rclpy.try_shutdown()
     return 0

@@ -16,40 +16,30 @@ they are (said once).
 Start: ``ros2 run grass_nrsfm_ros tracker --ros-args ...``, ``grass-nrsfm tracker --ros-args
 ...`` or ``python -m grass_nrsfm_ros.tracker_node --ros-args ...``.
 """
-import signal
 import sys
-import threading
 import time
 import warnings
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
 from rcl_interfaces.msg import ParameterDescriptor
-import rclpy
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
-from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from grass_nrsfm_ros import cloud, image, tracker_params
 from grass_nrsfm_ros.frontend import DenseTracker, FrameSizeError
+from grass_nrsfm_ros.ros_common import spin, stamp_ns
 from grass_nrsfm_ros.tracker_stats import TrackerStats
 
-SPIN_PERIOD_S = 0.1          # longest delay before the spin loop sees Ctrl-C / SIGTERM
 LOG_PERIOD_S = 10.0          # each kind of bad input is logged at most once per period
 DIAGNOSTICS_PERIOD_S = 1.0
 TRACKS_DTYPE = np.dtype([('track_id', '<u4'), ('u', '<f4'), ('v', '<f4')])
 AGED_DTYPE = np.dtype([('track_id', '<u4'), ('u', '<f4'), ('v', '<f4'), ('age', '<u4')])
-
-
-def stamp_ns(stamp):
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
 def tracks_array(frame, with_age):
@@ -209,30 +199,7 @@ class TrackerNode(Node):
 def main(args=None):
     """Run the tracker node until Ctrl-C / SIGTERM; returns the exit code (2: invalid
     parameters, e.g. an unreadable mask)."""
-    # Ctrl-C / SIGTERM set a flag that the spin loop reads (as the reconstruction node does:
-    # rclpy's own handlers shut the context down from C, racing the start-up)
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    node = None
-    try:
-        try:
-            node = TrackerNode()
-        except (ValueError, ParameterException) as exc:
-            print(f'grass_nrsfm tracker: error: {exc}', file=sys.stderr)
-            return 2
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        while not stop.is_set():
-            executor.spin_once(timeout_sec=SPIN_PERIOD_S)
-    except ExternalShutdownException:
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return spin(TrackerNode, args, 'grass_nrsfm tracker')
 
 
 if __name__ == '__main__':
