@@ -3,7 +3,8 @@ pytest puts test/ on the path, and the node tests' launch strings run from test/
 
 Inputs: :func:`bending_sheet` (``W: (2F, P)`` pixels, ``S: (3F, P)``, ``ids: (P,)``),
 :func:`random_rotations` (``(F, 3, 3)``); :func:`frames_of` and :func:`stacked` (frames in,
-FrameResults out as ``(3F, P)``); :func:`wait_until`, the polling helper. A real rigid
+FrameResults out as ``(3F, P)``), :func:`sliding_windows` (a pipeline's windows without its
+tracking); :func:`wait_until`, the polling helper. A real rigid
 solver, :class:`RigidALS` (it takes ``grass_nrsfm_ros.nrsfm.WarmStart`` and reports
 ``rotation_method='rigid'``, so the mapper's default 'resume' warm start resumes it), which
 the node and pipeline tests inject in place of GrassmannNRSfM; solvers that misbehave (NaN,
@@ -64,6 +65,21 @@ def stacked(results, ids=None):
         return np.vstack([r.xyz.T for r in results])
     return np.vstack([r.xyz[np.argsort(r.ids)][np.searchsorted(np.sort(r.ids), ids)].T
                       for r in results])
+
+
+def sliding_windows(pipeline, W, ids):
+    """FrameResults of ``W: (2F, P)`` through an inline LivePipeline's windowing, mapper and
+    refinement driven directly, without its tracking: the windows close every stride only (no
+    fresh window a surprising frame asks for), as ``points/refined`` gives them out."""
+    windowing, refinement = pipeline.windowing, pipeline.refinement
+    mapper = pipeline.backend.mapper
+    windows, out = [], []
+    for f, (fid, uv) in enumerate(frames_of(W, ids)):
+        windows += windowing.push(windowing.accept(f, fid, uv))
+    for window in windows + windowing.flush(refinement.waiting(windowing.sequence)):
+        refinement.expect(window)
+        out += refinement.take(mapper.solve(window))
+    return out
 
 
 def wait_until(condition, timeout=60.0):

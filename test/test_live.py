@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from doubles import bending_sheet as make_sequence, frames_of, RigidALS, stacked
+from doubles import (bending_sheet as make_sequence, frames_of, RigidALS, sliding_windows,
+                     stacked)
 from grass_nrsfm_ros.mapper import make_mapper, Mapper
 from grass_nrsfm_ros.nrsfm import tracking
 from grass_nrsfm_ros.nrsfm.measurement import as_frames
@@ -238,18 +239,10 @@ def live(solver=RigidALS, **config):
     return make_pipeline({'refined_from': 'first_window', **config}, solver)
 
 
-def sliding_windows(W, ids, solver=RigidALS, **config):
-    """The windows' FrameResults of ``W: (2F, P)`` without the tracking: the windowing, the
-    mapper and the refinement the pipeline wires, driven directly."""
+def sliding(W, ids, solver=RigidALS, **config):
+    """``(the windows' FrameResults of W without the tracking, the mapper)``."""
     p = live(solver, **config)
-    windowing, mapper, refinement = p.windowing, p.backend.mapper, p.refinement
-    out, windows = [], []
-    for f, (fid, uv) in enumerate(frames_of(W, ids)):
-        windows += windowing.push(windowing.accept(f, fid, uv))
-    for window in windows + windowing.flush():
-        refinement.expect(window)
-        out += refinement.take(mapper.solve(window))
-    return out, mapper
+    return sliding_windows(p, W, ids), p.backend.mapper
 
 
 def test_every_frame_is_published_on_arrival_and_refined_once():
@@ -270,7 +263,7 @@ def test_every_frame_is_published_on_arrival_and_refined_once():
 def test_refined_output_is_the_windows_output_and_tracking_follows_the_rigid_model():
     W, S, ids = make_sequence(F=60, P=150, bend=0.0)                 # rigid: exact for RigidALS
     points, refined, _ = reconstruct_live(live(), np.arange(60), frames_of(W, ids))
-    windows, _ = sliding_windows(W, ids)
+    windows, _ = sliding(W, ids)
     # the same frames, up to one depth sign for the whole sequence (the first model keeps
     # the orientation the bootstrap published)
     sign = np.sign(np.dot(refined[0].xyz[:, 2], windows[0].xyz[:, 2]))
@@ -408,8 +401,8 @@ def test_bad_parameters_are_refused():
 def test_mapping_on_a_subset_of_tracks_fills_in_the_rest():
     seq = make_surface('bending', n_frames=40, n_points=600, seed=1)
     ids = np.arange(600, dtype=np.uint32)
-    full, _ = sliding_windows(seq.W, ids, None)
-    part, cut = sliding_windows(seq.W, ids, None, mapping_tracks=300)
+    full, _ = sliding(seq.W, ids, None)
+    part, cut = sliding(seq.W, ids, None, mapping_tracks=300)
     assert all(r.ids.size == 600 for r in part)
     e_full = e3d(stacked(full), seq.S)
     e_part = e3d(stacked(part), seq.S)
