@@ -15,8 +15,9 @@ Shapes and units:
   or 'bgr'), uint8, uint16 (scaled to 8 bits by the bit depth of the first uint16 frame) or
   float in [0, 1];
 * ``region``: None (the whole image), a bool mask ``(H, W)`` of the first frame (it moves
-  with the surface: carried along by the flow at each re-anchoring) or a rectangle
-  ``(x0, y0, x1, y1)`` of pixels, bounds included (fixed in the image);
+  with the surface: at each re-anchoring it becomes the grid cells its tracks hold and
+  their neighbours) or a rectangle ``(x0, y0, x1, y1)`` of pixels, bounds included (fixed
+  in the image);
 * :class:`TrackFrame`: ``ids: (P,) uint32``, ``uv: (P, 2) float64`` pixels (pixel centres at
   integer coordinates, u to the right, v down), ``age: (P,) int64`` frames since birth,
   ``counts`` a dict of ints.
@@ -32,10 +33,13 @@ import warnings
 import cv2
 import numpy as np
 
-#: flow methods: a DIS preset, optionally refined per track by Lucas-Kanade from the
-#: reference; or pyramidal Lucas-Kanade alone
+#: flow methods: a DIS preset from the reference to the frame (its last flow as the initial
+#: flow), optionally refined per track by Lucas-Kanade from the reference ('+lk'); or DIS
+#: from the previous frame predicting where LK from the reference starts ('/prev+lk'); or
+#: pyramidal Lucas-Kanade from the reference alone, starting at the last positions ('lk')
 METHODS = ('dis-ultrafast', 'dis-fast', 'dis-medium',
-           'dis-ultrafast+lk', 'dis-fast+lk', 'dis-medium+lk', 'lk')
+           'dis-ultrafast+lk', 'dis-fast+lk', 'dis-medium+lk',
+           'dis-ultrafast/prev+lk', 'dis-fast/prev+lk', 'dis-medium/prev+lk', 'lk')
 _DIS_PRESETS = {'dis-ultrafast': cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST,
                 'dis-fast': cv2.DISOPTICAL_FLOW_PRESET_FAST,
                 'dis-medium': cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}
@@ -85,15 +89,20 @@ class DenseTracker:
     reference patch dies), ``fb_max_px`` (forward-backward distance above which a track dies;
     None: no forward-backward check). Re-anchoring: when the median ZNCC of the tracks falls
     below ``reanchor_zncc``, when more than ``reanchor_uncovered`` of the region's grid cells
-    hold no track, or every ``reanchor_every`` frames (None: never by count). Births only on
-    cells whose reference patch has a grey-level standard deviation of at least
-    ``min_texture``.
+    hold no track (a cell is covered by a track in it or in the eight around it), or every
+    ``reanchor_every`` frames (None: never by count). Births only on cells whose reference
+    patch has a grey-level standard deviation of at least ``min_texture``. ``lk_window``
+    (odd) and ``lk_levels`` (pyramid levels; None: 0 after DIS from the reference, 1 after
+    DIS from the previous frame, 3 for 'lk') set the Lucas-Kanade refinement, which fails a
+    track when it moves it more than 1 px from DIS; ``channel_order`` of colour frames;
+    ``blank_std``: a frame whose grey levels vary less than this is blank. Why these
+    defaults: docs/decisions/0600.
     """
 
     def __init__(self, step=4, region=None, method=DEFAULT_METHOD, *, K=None, min_zncc=0.8,
                  fb_max_px=None, reanchor_zncc=0.9, reanchor_uncovered=0.1,
-                 reanchor_every=None, min_texture=2.0, lk_window=11, channel_order='rgb',
-                 blank_std=2.0):
+                 reanchor_every=None, min_texture=2.0, lk_window=11, lk_levels=None,
+                 channel_order='rgb', blank_std=2.0):
         if isinstance(step, bool) or not isinstance(step, (int, np.integer)) or step < 1:
             raise ValueError(f'step must be an int >= 1 pixel; got {step!r}')
         if method not in METHODS:
@@ -113,6 +122,9 @@ class DenseTracker:
                              f'{reanchor_every!r}')
         if not isinstance(lk_window, (int, np.integer)) or lk_window < 3 or lk_window % 2 == 0:
             raise ValueError(f'lk_window must be an odd int >= 3; got {lk_window!r}')
+        if lk_levels is not None and (not isinstance(lk_levels, (int, np.integer))
+                                      or not 0 <= lk_levels <= 6):
+            raise ValueError(f'lk_levels must be None or an int in [0, 6]; got {lk_levels!r}')
         self.step = int(step)
         self.method = method
         self.region = _validate_region(region)
@@ -122,9 +134,12 @@ class DenseTracker:
         self.reanchor_every, self.min_texture = reanchor_every, float(min_texture)
         self.lk_window, self.channel_order = int(lk_window), channel_order
         self.blank_std = float(blank_std)
-        preset = _DIS_PRESETS.get(method.split('+')[0])
+        preset = _DIS_PRESETS.get(method.split('+')[0].split('/')[0])
         self._dis = None if preset is None else cv2.DISOpticalFlow.create(preset)
         self._refine = method.endswith('+lk') or method == 'lk'
+        self._chain = '/prev' in method
+        self.lk_levels = lk_levels if lk_levels is not None else (
+            3 if self._dis is None else 1 if self._chain else 0)
         self._next_id = 0
         self._warned = set()
         self.reset()
@@ -137,8 +152,10 @@ class DenseTracker:
         self._ref = None              # (H, W) uint8 reference frame
         self._region_ref = None       # (H, W) bool region in the reference frame
         self._flow = None             # (H, W, 2) float32 flow reference -> last frame
+        self._last = None             # (H, W) uint8 last frame tracked
         self._ids = np.zeros(0, np.uint32)
         self._uv_ref = np.zeros((0, 2), np.float32)
+        self._ref_patches = np.zeros((0, len(_OFFSETS)), np.float32)   # (P, n) zero-mean
         self._uv = np.zeros((0, 2), np.float64)
         self._born = np.zeros(0, np.int64)
         self._frame = -1
@@ -164,6 +181,7 @@ class DenseTracker:
             self._start(grey, counts)
         else:
             self._follow(grey, counts)
+        self._last = grey
         return self._frame_out(np.ones(len(self._ids), bool), counts)
 
     @property
@@ -184,7 +202,7 @@ class DenseTracker:
         """Track the alive tracks from the reference into ``grey``; kill, re-anchor, birth."""
         uv, ok_flow = self._flow_tracks(grey)
         inside = _inside(uv, grey.shape)
-        zncc = _patch_zncc(self._ref, self._uv_ref, grey, uv)
+        zncc = _patch_zncc(self._ref_patches, grey, uv)
         passed = ok_flow & (zncc >= self.min_zncc)
         if self.fb_max_px is not None:
             passed &= self._forward_backward(grey, uv) <= self.fb_max_px
@@ -194,6 +212,7 @@ class DenseTracker:
         counts['lost'] = int((~keep).sum())
         median_zncc = float(np.median(zncc[keep])) if keep.any() else -1.0
         self._ids, self._uv_ref, self._born = self._ids[keep], self._uv_ref[keep], self._born[keep]
+        self._ref_patches = self._ref_patches[keep]
         self._uv = uv[keep]
         if self._needs_reanchor(median_zncc, grey.shape):
             region = self._carried_region(grey.shape)
@@ -206,7 +225,11 @@ class DenseTracker:
         if len(self._ids) == 0:
             return np.zeros((0, 2)), np.zeros(0, bool)
         guess = self._uv.astype(np.float32)
-        if self._dis is not None:
+        if self._chain:
+            step = self._dis.calc(self._last, grey, None)
+            guess = guess + sample(step, guess)
+            self._flow = _compose(self._flow, step)
+        elif self._dis is not None:
             init = self._flow if self._flow is not None else None
             self._flow = self._dis.calc(self._ref, grey, None if init is None else init.copy())
             guess = self._uv_ref + sample(self._flow, self._uv_ref)
@@ -220,11 +243,10 @@ class DenseTracker:
 
     def _lucas_kanade(self, src, dst, points, guess):
         """Pyramidal LK of ``points (P, 2)`` from ``src`` to ``dst`` starting at ``guess``."""
-        levels = 3 if self._dis is None else 1
         moved, status, _ = cv2.calcOpticalFlowPyrLK(
             src, dst, points.reshape(-1, 1, 2), guess.reshape(-1, 1, 2).copy(),
-            winSize=(self.lk_window, self.lk_window), maxLevel=levels,
-            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 0.01),
+            winSize=(self.lk_window, self.lk_window), maxLevel=self.lk_levels,
+            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 10, 0.01),
             flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
         return moved.reshape(-1, 2), status.ravel().astype(bool)
 
@@ -258,6 +280,7 @@ class DenseTracker:
         self._ref_frame = self._frame
         self._flow = None
         self._uv_ref = self._uv.astype(np.float32)
+        self._ref_patches = _centred_patches(grey, self._uv_ref)
 
     def _birth(self, grey):
         """New tracks on the uncovered, textured grid cells of the reference region; returns
@@ -265,7 +288,9 @@ class DenseTracker:
         cells = self._region_cells(self._region_ref)
         if len(cells):
             cells = cells[~_covered(cells, self._uv, self.step, grey.shape)]
-            cells = cells[_patch_std(grey, cells) >= self.min_texture]
+        patches = _centred_patches(grey, cells)
+        textured = np.sqrt((patches ** 2).mean(axis=1)) >= self.min_texture
+        cells, patches = cells[textured], patches[textured]
         n = len(cells)
         new_ids = self._next_id + np.arange(n, dtype=np.int64)
         if new_ids.size and new_ids[-1] >= 2 ** 32:
@@ -275,6 +300,7 @@ class DenseTracker:
         self._uv = np.concatenate([self._uv, cells.astype(np.float64)])
         self._uv_ref = np.concatenate([self._uv_ref, cells.astype(np.float32)])
         self._born = np.concatenate([self._born, np.full(n, self._frame, np.int64)])
+        self._ref_patches = np.concatenate([self._ref_patches, patches])
         return n
 
     # ---------------------------------------------------------------- region
@@ -296,15 +322,12 @@ class DenseTracker:
         return mask
 
     def _carried_region(self, shape):
-        """The region in the current frame: a mask moves with the dense flow from the
-        reference (where there is one; else with the tracks); a rectangle or the whole image
-        stays where it is. A mask carried out of view starts again from the first frame's."""
+        """The region in the current frame: a mask moves with its tracks (the grid cells
+        holding tracks and their neighbours); a rectangle or the whole image stays where it is. A
+        mask whose tracks are all gone starts again from the first frame's."""
         if not isinstance(self.region, np.ndarray):
             return self._region_ref
-        if self._flow is not None:
-            carried = _warp_mask(self._region_ref, self._flow)
-        else:
-            carried = _occupied_mask(self._uv, self.step, shape)
+        carried = _occupied_mask(self._uv, self.step, shape)
         return carried if carried.any() else self._region_mask(shape)
 
     def _region_cells(self, region):
@@ -405,36 +428,30 @@ def sample(image, points, interpolation=cv2.INTER_LINEAR):
     return out.reshape(rows * width, -1)[:n].astype(np.float32)
 
 
-_OFFSETS = np.stack(np.meshgrid(np.arange(-_PATCH_RADIUS, _PATCH_RADIUS + 1),
-                                np.arange(-_PATCH_RADIUS, _PATCH_RADIUS + 1)),
-                    axis=-1).reshape(-1, 2).astype(np.float32)        # (n, 2)
+_OFFSETS = np.stack(np.meshgrid(np.arange(-_PATCH_RADIUS, _PATCH_RADIUS + 1, 2),
+                                np.arange(-_PATCH_RADIUS, _PATCH_RADIUS + 1, 2)),
+                    axis=-1).reshape(-1, 2).astype(np.float32)        # (n, 2), every 2 px
 
 
-def _patches(grey, points):
-    """``(P, n)`` float32 bilinear patches of ``grey`` around ``points (P, 2)``."""
+def _centred_patches(grey, points):
+    """``(P, n)`` float32 zero-mean bilinear patches of ``grey`` around ``points (P, 2)``
+    (11 x 11 pixels sampled every 2)."""
     where = points.astype(np.float32)[:, None, :] + _OFFSETS[None]   # (P, n, 2)
-    return sample(grey, where.reshape(-1, 2)).reshape(len(points), -1)
+    patches = sample(grey, where.reshape(-1, 2)).reshape(len(points), len(_OFFSETS))
+    return patches - patches.mean(axis=1, keepdims=True)
 
 
-def _patch_zncc(ref, ref_points, grey, points):
+def _patch_zncc(ref_patches, grey, points):
     """Zero-mean normalised cross-correlation ``(P,)`` of each track's patch in ``grey``
-    against its patch in the reference; flat patches (std under 1 grey level) score low."""
+    against its zero-mean reference patch ``ref_patches (P, n)``; flat patches (std under 1
+    grey level) score low."""
     if len(points) == 0:
         return np.zeros(0)
-    a = _patches(ref, ref_points)
-    b = _patches(grey, points)
-    a -= a.mean(axis=1, keepdims=True)
-    b -= b.mean(axis=1, keepdims=True)
+    b = _centred_patches(grey, points)
+    a = ref_patches
     n = a.shape[1]
     denom = np.sqrt(((a * a).sum(1) + n) * ((b * b).sum(1) + n))
     return (a * b).sum(1) / denom
-
-
-def _patch_std(grey, points):
-    """Grey-level standard deviation ``(P,)`` of the patch around each point."""
-    if len(points) == 0:
-        return np.zeros(0)
-    return _patches(grey, points).std(axis=1)
 
 
 def _inside(uv, shape):
@@ -453,10 +470,14 @@ def _cell_index(points, step, shape):
 
 
 def _covered(cells, uv, step, shape):
-    """``(G,)`` bool: which grid points' cells hold at least one of the tracks ``uv``."""
-    occupied = np.zeros(_cell_index(cells[:0], step, shape)[1], bool)
-    occupied[_cell_index(uv, step, shape)[0]] = True
-    return occupied[_cell_index(cells, step, shape)[0]]
+    """``(G,)`` bool: which grid points have one of the tracks ``uv`` in their cell or the
+    eight around it (a hole must be two cells wide before tracks are born in it)."""
+    H, W = shape
+    rows, cols = -(-H // step), -(-W // step)
+    occupied = np.zeros(rows * cols, np.uint8)
+    occupied[_cell_index(uv, step, shape)[0]] = 1
+    near = cv2.dilate(occupied.reshape(rows, cols), np.ones((3, 3), np.uint8)).ravel()
+    return near[_cell_index(cells, step, shape)[0]].astype(bool)
 
 
 def _uncovered_share(cells, uv, step, shape):
@@ -465,25 +486,20 @@ def _uncovered_share(cells, uv, step, shape):
     return 1.0 - float(_covered(cells, uv, step, shape).mean())
 
 
-def _warp_mask(mask, flow):
-    """``mask (H, W)`` of the reference moved by ``flow (H, W, 2)`` (reference -> current):
-    each current pixel looks up its reference position by fixed-point inversion of the
-    flow."""
-    H, W = mask.shape
+def _compose(first, second):
+    """Flow ``(H, W, 2)`` of ``first`` (a -> b, None: zero) followed by ``second`` (b -> c)."""
+    if first is None:
+        return second
+    H, W = first.shape[:2]
     grid = np.stack(np.meshgrid(np.arange(W, dtype=np.float32),
                                 np.arange(H, dtype=np.float32)), axis=-1)
-    where = grid - flow
-    for _ in range(3):
-        back = cv2.remap(flow, where[..., 0], where[..., 1], cv2.INTER_LINEAR,
-                         borderMode=cv2.BORDER_REPLICATE)
-        where = grid - back
-    moved = cv2.remap(mask.astype(np.uint8), where[..., 0], where[..., 1], cv2.INTER_NEAREST,
-                      borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    return moved.astype(bool)
+    where = grid + first
+    return first + cv2.remap(second, where[..., 0], where[..., 1], cv2.INTER_LINEAR,
+                             borderMode=cv2.BORDER_REPLICATE)
 
 
 def _occupied_mask(uv, step, shape):
-    """The grid cells (and their neighbours) holding tracks, as a pixel mask ``(H, W)``."""
+    """The grid cells holding tracks and their neighbours, as a pixel mask ``(H, W)``."""
     H, W = shape
     index, n = _cell_index(uv, step, shape)
     rows, cols = -(-H // step), -(-W // step)

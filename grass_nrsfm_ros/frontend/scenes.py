@@ -310,7 +310,7 @@ def _vertex_normals(vertices, triangles):
 
 # ---------------------------------------------------------------- textures
 
-def random_texture(size, seed, finest=1.5):
+def random_texture(size, seed, finest=2.0):
     """A rich random RGB texture ``(h, w, 3)`` uint8: multi-scale noise (octaves from
     ``finest`` pixels of blur up to a quarter of the size) plus random coloured blobs."""
     h, w = size
@@ -342,13 +342,14 @@ def pinhole(size=(480, 640), focal=620.0):
 
 
 def turn(n_frames, seed, yaw=30.0, pitch=10.0, roll=5.0):
-    """Head-turn rotations ``(F, 3, 3)``: smooth yaw / pitch / roll within +- the given
-    degrees, one and a half swings of yaw per sequence (random phases)."""
+    """Head-turn rotations ``(F, 3, 3)``: the yaw swings once from -``yaw`` to +``yaw``
+    degrees over the sequence, pitch and roll move smoothly within +- theirs (random
+    phases)."""
     rng = np.random.default_rng([seed, 7])
     t = synthetic.frame_times(n_frames)
     phase = rng.uniform(0, 2 * np.pi, 3)
     return synthetic.rotations_from_angles(
-        yaw * DEG * np.sin(2 * np.pi * 0.75 * t + phase[0]),
+        -yaw * DEG * np.cos(np.pi * t),
         pitch * DEG * np.sin(2 * np.pi * 0.5 * t + phase[1]),
         roll * DEG * np.sin(2 * np.pi * 0.4 * t + phase[2]))
 
@@ -385,7 +386,7 @@ def sheet_scene(kind='bending', n_frames=100, *, size=(480, 640), focal=620.0,
     R = turn(n_frames, seed, yaw=yaw, pitch=yaw / 2.5, roll=yaw / 5)
     H, W = size
     vertices = _place(world, R, extent_px, focal, exit_share, H, W)
-    texture = random_texture((int(extent_px * 1.2), int(extent_px * 1.6)), seed)
+    texture = random_texture((int(extent_px * 0.75), extent_px), seed)
     background = random_texture(size, seed + 1000)
     return Scene(f'sheet_{kind}', vertices, _grid_triangles(nu, nv), params, pinhole(size, focal),
                  size, texture, background // 2 + 64, noise=noise, shading=shading,
@@ -417,7 +418,7 @@ def face_scene(n_frames=100, *, model=None, size=(480, 640), focal=620.0, extent
     vertices = _place(world, R, extent_px, focal, exit_share, H, W)
     texcoords = (identity[:, :2] - identity[:, :2].min(0)) / np.ptp(identity[:, :2], axis=0)
     texcoords[:, 1] = 1.0 - texcoords[:, 1]
-    texture = random_texture((int(extent_px * 1.3), int(extent_px * 1.1)), seed)
+    texture = random_texture((extent_px, int(extent_px * 0.8)), seed)
     background = random_texture(size, seed + 1000)
     return Scene('face', vertices, model.triangles, texcoords, pinhole(size, focal), size,
                  texture, background // 2 + 64, noise=noise, shading=shading,

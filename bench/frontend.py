@@ -1,0 +1,232 @@
+"""Front end: dense tracks from rendered image sequences against their ground truth.
+
+``python -m bench.frontend [--smoke] [--frames F] [--methods M1,M2] [--step N]`` renders a
+Surrey-model face (where the model is present) and a bending sheet (640 x 480, f = 620 px,
+100 frames, sensor noise 1 grey level, 30 % Lambert shading), tracks them with
+:class:`grass_nrsfm_ros.frontend.DenseTracker` (region: the frame-0 mask of the surface) and
+measures, per sequence and method:
+
+* tracking error against the true projection of the surface point each track was born on,
+  over every (frame, track) pair where the point is visible: median / p95 / max px;
+* the share of frame-0 tracks alive in the last frame among those visible there (and among
+  those visible in every frame); tracks alive while their point is hidden;
+* tracks born in the face's frame 0 at step 2 and step 1;
+* milliseconds per frame with about 5,000 tracks on one core (``cv2.setNumThreads(1)``,
+  ``OPENBLAS_NUM_THREADS=1``; the machine's load average is recorded beside it);
+* e3D (per-frame Procrustes with scale) of GrassmannNRSfM on the complete frame-0 tracks in
+  normalised coordinates ``K^-1 [u v 1]`` over e3D from perfect tracks of the same points.
+
+Figures go to stdout and ``bench/results/frontend.json`` (``--smoke``: 12 frames, one
+method, ``bench/results/smoke/``).
+"""
+import argparse
+import os
+import time
+
+import cv2
+import numpy as np
+
+from grass_nrsfm_ros.frontend import DenseTracker, scenes
+from grass_nrsfm_ros.frontend.flow import DEFAULT_METHOD, METHODS
+from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM
+from . import common
+
+RECONSTRUCTION_POINTS = 1500         # complete tracks given to the solver (evenly subsampled)
+
+
+def make_scenes(n_frames):
+    """``[(name, Scene)]``: the face where the Surrey model is found, and a bending sheet."""
+    out = []
+    try:
+        out.append(('face', scenes.face_scene(n_frames)))
+    except FileNotFoundError as exc:
+        common.log(f'frontend: no face ({exc.__class__.__name__}); sheet only')
+    out.append(('sheet', scenes.sheet_scene('bending', n_frames)))
+    return out
+
+
+def render(scene):
+    """All frames ``[(H, W, 3) uint8]`` and the seconds per frame it took."""
+    start = time.perf_counter()
+    images = [scene.render(f) for f in range(scene.n_frames)]
+    for f in range(scene.n_frames):
+        scene.raster(f)                  # depth buffers for the visibility of the truth
+    return images, (time.perf_counter() - start) / scene.n_frames
+
+
+def run_tracker(images, method, step, region, **kwargs):
+    """``(frames: [TrackFrame], ms per frame after the first)``."""
+    tracker = DenseTracker(step=step, region=region, method=method, **kwargs)
+    frames, seconds = [], []
+    for image in images:
+        start = time.perf_counter()
+        frames.append(tracker.track(image))
+        seconds.append(time.perf_counter() - start)
+    return frames, 1e3 * float(np.median(seconds[1:])) if len(seconds) > 1 else None
+
+
+def track_matrix(frames):
+    """``(ids: (P,), uv: (F, P, 2) NaN where not tracked, birth: (P,) frame, start: (P, 2))``
+    of every track of a run."""
+    ids = np.unique(np.concatenate([fr.ids for fr in frames]))
+    uv = np.full((len(frames), len(ids), 2), np.nan)
+    birth = np.full(len(ids), -1)
+    start = np.full((len(ids), 2), np.nan)
+    for f, fr in enumerate(frames):
+        col = np.searchsorted(ids, fr.ids)
+        uv[f, col] = fr.uv
+        new = fr.age == 0
+        birth[col[new]], start[col[new]] = f, fr.uv[new]
+    return ids, uv, birth, start
+
+
+def ground_truth(scene, birth, start):
+    """True ``uv (F, P, 2)``, ``X (F, P, 3)``, ``visible (F, P)`` of each track's point."""
+    F, P = scene.n_frames, len(birth)
+    uv, X = np.full((F, P, 2), np.nan), np.full((F, P, 3), np.nan)
+    visible = np.zeros((F, P), bool)
+    for f in np.unique(birth[birth >= 0]):
+        cols = np.flatnonzero(birth == f)
+        truth = scene.truth(start[cols], start=int(f))
+        uv[:, cols], X[:, cols], visible[:, cols] = truth.uv, truth.X, truth.visible
+    return uv, X, visible
+
+
+def evaluate(scene, frames):
+    """Accuracy, survival and reconstruction figures of one run."""
+    ids, uv, birth, start = track_matrix(frames)
+    true_uv, X, visible = ground_truth(scene, birth, start)
+    tracked = np.isfinite(uv[..., 0])
+    err = np.linalg.norm(uv - true_uv, axis=2)
+    scored = tracked & visible
+    first = birth == 0
+    last_visible = first & visible[-1]
+    always_visible = first & visible.all(axis=0)
+    alive_last = tracked[-1]
+    errors = err[scored]
+    figures = {
+        'tracks_total': int(len(ids)), 'tracks_frame0': int(first.sum()),
+        'pairs_scored': int(scored.sum()),
+        'error_median_px': float(np.median(errors)),
+        'error_p95_px': float(np.percentile(errors, 95)),
+        'error_max_px': float(errors.max()),
+        'error_last_frame_median_px': float(np.median(err[-1][scored[-1]])),
+        'alive_last_among_visible_last': float(alive_last[last_visible].mean()),
+        'alive_last_among_visible_always': float(alive_last[always_visible].mean()),
+        'alive_while_hidden_share': float((tracked & ~visible).sum() / max(tracked.sum(), 1)),
+        'born_off_surface': int((~np.isfinite(true_uv[0, :, 0])).sum()),
+        'alive_per_frame': tracked.sum(axis=1).tolist(),
+        'reanchored_frames': [f for f, fr in enumerate(frames) if fr.counts['reanchored']],
+        'failed_checks': int(sum(fr.counts['failed'] for fr in frames)),
+    }
+    complete = first & tracked.all(axis=0) & visible.all(axis=0)
+    figures.update(reconstruction(scene, uv[:, complete], true_uv[:, complete], X[:, complete]))
+    return figures
+
+
+def reconstruction(scene, uv, true_uv, X):
+    """e3D of GrassmannNRSfM from the tracks and from perfect tracks of the same points."""
+    P = uv.shape[1]
+    if P < 50:
+        return {'reconstruction_points': P}
+    keep = np.linspace(0, P - 1, min(P, RECONSTRUCTION_POINTS)).astype(int)
+    S = X[:, keep].transpose(0, 2, 1).reshape(-1, len(keep))            # (3F, P)
+    out = {'reconstruction_points': int(len(keep)), 'complete_tracks': int(P)}
+    for name, points in (('tracked', uv[:, keep]), ('perfect', true_uv[:, keep])):
+        W = normalised(points, scene.K)
+        result = GrassmannNRSfM().fit(W)
+        out[f'e3d_{name}'] = e3d(result.S, S, scale=True)
+    out['e3d_ratio'] = out['e3d_tracked'] / out['e3d_perfect']
+    return out
+
+
+def normalised(uv, K):
+    """``W (2F, P)`` of ``K^-1 [u v 1]`` for pixels ``uv (F, P, 2)``."""
+    x = (uv[..., 0] - K[0, 2] - K[0, 1] * (uv[..., 1] - K[1, 2]) / K[1, 1]) / K[0, 0]
+    y = (uv[..., 1] - K[1, 2]) / K[1, 1]
+    return np.stack([x, y], axis=1).reshape(-1, uv.shape[1])
+
+
+def density(image, mask):
+    """Tracks born in a frame at step 2 and step 1 inside ``mask``."""
+    return {f'tracks_step{step}': int(DenseTracker(step=step, region=mask).track(image)
+                                      .counts['born']) for step in (2, 1)}
+
+
+def timing(images, mask, method, target=5000):
+    """Milliseconds per frame on one OpenCV thread with about ``target`` tracks."""
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        step = max(1, int(round(np.sqrt(mask.sum() / target))))
+        frames, ms = run_tracker(images, method, step, mask)
+    finally:
+        cv2.setNumThreads(threads)
+    return {'timing_step': step, 'timing_tracks_mean': float(np.mean(
+        [len(fr.ids) for fr in frames])), 'ms_per_frame_1_thread': ms,
+        'load_average_1min': os.getloadavg()[0]}
+
+
+def run(mode, methods=None, step=4, n_frames=None):
+    methods = methods or mode.pick([DEFAULT_METHOD], [DEFAULT_METHOD], list(METHODS))
+    n_frames = n_frames or mode.pick(12, 100, 100)
+    rows, sequences = [], {}
+    for name, scene in make_scenes(n_frames):
+        images, render_s = render(scene)
+        mask = scene.mask(0)
+        sequences[name] = {'frames': n_frames, 'size': list(scene.size),
+                           'render_ms_per_frame': 1e3 * render_s,
+                           'mask_pixels': int(mask.sum())}
+        if name == 'face' or len(sequences) == 1:
+            sequences[name].update(density(images[0], mask))
+        for method in methods:
+            common.log(f'frontend: {name} {method} step {step}')
+            frames, ms = run_tracker(images, method, step, mask)
+            row = {'sequence': name, 'method': method, 'step': step, 'ms_per_frame': ms}
+            row.update(evaluate(scene, frames))
+            row.update(timing(images, mask, method))
+            rows.append(row)
+            print(summary(row), flush=True)
+    return {'rows': rows, 'sequences': sequences, 'targets': TARGETS}
+
+
+TARGETS = {'face_error_median_px': 0.5, 'face_error_p95_px': 2.0, 'sheet_error_median_px': 0.3,
+           'sheet_error_p95_px': 1.5, 'alive_last_among_visible_last': 0.9,
+           'tracks_step2_face': 5000, 'ms_per_frame_5000_tracks': 25, 'e3d_ratio': 1.2}
+
+
+def summary(row):
+    return (f"{row['sequence']:5s} {row['method']:17s} err median {row['error_median_px']:.3f}"
+            f" p95 {row['error_p95_px']:.3f} max {row['error_max_px']:.1f} px | alive "
+            f"{100 * row['alive_last_among_visible_last']:.1f} % | hidden-alive "
+            f"{100 * row['alive_while_hidden_share']:.2f} % | {row['tracks_frame0']} tracks | "
+            f"{row['ms_per_frame_1_thread']:.1f} ms/frame 1 thread at "
+            f"{row['timing_tracks_mean']:.0f} tracks | e3D ratio "
+            f"{row.get('e3d_ratio', float('nan')):.3f} | reanchored "
+            f"{len(row['reanchored_frames'])}x")
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    parser.add_argument('--smoke', action='store_true', help='12 frames, one method')
+    parser.add_argument('--frames', type=int, default=None, help='frames per sequence')
+    parser.add_argument('--methods', default=None,
+                        help=f'comma-separated, of {", ".join(METHODS)} (default: '
+                        f'{DEFAULT_METHOD}; "all": every one)')
+    parser.add_argument('--step', type=int, default=4, help='grid step in pixels')
+    parser.add_argument('--out', default=None, help='results folder')
+    args = parser.parse_args(argv)
+    methods = None
+    if args.methods:
+        methods = list(METHODS) if args.methods == 'all' else args.methods.split(',')
+        unknown = set(methods) - set(METHODS)
+        if unknown:
+            parser.error(f'unknown methods {sorted(unknown)}; choose from {METHODS}')
+    mode = common.Mode('smoke' if args.smoke else 'quick', out=args.out)
+    payload = run(mode, methods, args.step, args.frames)
+    path = common.write_result(mode, 'frontend', payload)
+    print(f'wrote {path}')
+
+
+if __name__ == '__main__':
+    main()
