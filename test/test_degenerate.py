@@ -4,16 +4,18 @@ at one pixel, too few tracks or frames, all tracks replaced mid-window.
 The contract: a solver returns finite shapes and rotations or raises a ValueError that says
 why; the pipeline (and the node) publishes finite clouds or nothing, and accounts for every
 frame (published, lost or pending)."""
+from functools import partial
+
 import numpy as np
 import pytest
 
-from doubles import NaNSolver, RigidALS, RigidWarmStart
+from doubles import NaNSolver, RigidALS
 from grass_nrsfm_ros import cloud
 from grass_nrsfm_ros.nrsfm import GrassmannNRSfM, rotation
 from grass_nrsfm_ros.nrsfm.measurement import as_frames, from_frames, to_camera
 from grass_nrsfm_ros.nrsfm.synthetic import camera_rotations, make_sequence
-from grass_nrsfm_ros.pipeline import (default_solver_factory, FrameError, SlidingWindow,
-                                      WindowError)
+from grass_nrsfm_ros.pipeline import make_pipeline
+from grass_nrsfm_ros.windowing import FrameError
 
 F, P = 30, 150
 
@@ -86,39 +88,40 @@ def test_solvers_return_finite_results_or_a_reason(name):
 
 
 # -- the pipeline ------------------------------------------------------------------------------
-def run_pipeline(W, ids=None, factory=None, **kwargs):
-    """Feed ``W`` frame by frame; return (results, pipeline, refused frames, failed windows)."""
-    kwargs = dict(dict(window_size=10, window_stride=5, min_tracks=4), **kwargs)
-    p = SlidingWindow(factory or RigidALS, warm_start_class=RigidWarmStart, **kwargs)
+def run_pipeline(W, ids=None, factory=None, **config):
+    """Feed ``W`` frame by frame to an inline LivePipeline (``refined_from: first_window``);
+    return (refined results, pipeline, refused frames, failed windows); the points published
+    on arrival are kept in ``pipeline.points``."""
+    config = dict(dict(window_size=10, window_stride=5, min_tracks=4,
+                       refined_from='first_window'), **config)
+    p = make_pipeline(config, factory or RigidALS)
     ids = np.arange(W.shape[1], dtype=np.uint32) if ids is None else ids
-    results, refused, failed = [], [], []
+    results, refused, failed, p.points = [], [], [], []
 
-    def solve(windows):
-        for window in windows:
-            try:
-                results.extend(p.solve(window))
-            except WindowError as exc:
-                failed.append(str(exc))
-            except Exception as exc:        # a solver failure: the node logs it and goes on
-                failed.append(f'{type(exc).__name__}: {exc}')
+    def take():
+        refined, updates = p.refined()
+        results.extend(refined)
+        failed.extend(u.message for u in updates if u.kind == 'failed')
 
     frames = as_frames(W, 2)
     for f in range(frames.shape[0]):
         frame_ids = ids if ids.ndim == 1 else ids[f]
         try:
-            solve(p.add_frame(10 ** 9 + f * 33_000_000, frame_ids, frames[f].T))
+            p.points += p.add_frame(10 ** 9 + f * 33_000_000, frame_ids, frames[f].T)
         except FrameError as exc:
             refused.append(str(exc))
-    solve(p.flush())
+        take()
+    p.flush()
+    take()
     return results, p, refused, failed
 
 
 def check_published(results, p, refused, sent):
-    assert all(np.isfinite(r.xyz).all() for r in results)
-    stats = p.stats
-    assert stats['frames'] + len(refused) == sent
-    assert stats['frames'] == stats['published'] + stats['frames_lost'] + p.pending_frames
-    assert stats['published'] == len(results)
+    assert all(np.isfinite(r.xyz).all() for r in results + p.points)
+    frames, published = p.windowing.stats['frames'], p.refinement.stats['published']
+    assert frames + len(refused) == sent and len(p.points) == frames
+    assert frames == published + p.frames_lost + p.pending_frames
+    assert published == len(results)
 
 
 @pytest.mark.parametrize('name', SCENES)
@@ -131,20 +134,21 @@ def test_pipeline_publishes_finite_clouds_or_nothing(name):
         assert not results and len(refused) == W.shape[0] // 2
         assert 'min_tracks' in refused[0]
     if name == 'too_few_frames':
-        assert not results and p.stats['frames_lost'] == 2
+        assert not results and p.frames_lost == 2
 
 
 def test_pipeline_publishes_nothing_from_a_solver_returning_nan():
     results, p, refused, failed = run_pipeline(scene('rigid'), factory=NaNSolver)
     check_published(results, p, refused, F)
-    assert results == [] and p.stats['solved'] == 0 and p.stats['failed'] == p.stats['windows']
+    assert results == [] and p.refinement.stats['solved'] == 0
+    assert p.refinement.stats['failed'] == p.windowing.stats['windows']
     assert failed and all('non-finite' in line for line in failed)
 
 
 @pytest.mark.parametrize('name', SCENES)
 def test_pipeline_with_the_grassmann_solver(name):
     W = scene(name)
-    results, p, refused, failed = run_pipeline(W, factory=default_solver_factory(max_iter=60))
+    results, p, refused, failed = run_pipeline(W, factory=partial(GrassmannNRSfM, max_iter=60))
     print(name, {'published': len(results), 'refused': len(refused), 'failed': failed[:1]})
     check_published(results, p, refused, W.shape[0] // 2)
 
@@ -155,7 +159,7 @@ def test_all_tracks_replaced_mid_window_publishes_both_sequences():
     ids[17:] += 10_000                       # frame 17: a new tracker session, mid-window
     results, p, refused, failed = run_pipeline(W, ids)
     check_published(results, p, refused, F)
-    assert p.stats['resets'] == 1 and not failed and not refused
+    assert p.windowing.stats['resets'] == 1 and not failed and not refused
     assert [r.stamp_ns for r in results] == [10 ** 9 + f * 33_000_000 for f in range(F)]
     assert all((r.ids < 10_000).all() == (k < 17) for k, r in enumerate(results))
 
