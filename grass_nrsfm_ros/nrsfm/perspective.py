@@ -1,0 +1,240 @@
+"""The perspective model: the projective-depth iteration around the whole solver chain.
+
+A pinhole sees the camera-frame point ``(X, Y, Z)`` at the normalised image point
+``x = (X/Z, Y/Z)`` (:mod:`.camera`: ``K^-1 [u, v, 1]``). Write each point's depth as
+``Z = Zbar_f (1 + delta)``, ``Zbar_f`` the frame's mean depth: then ``x (1 + delta) =
+(X, Y) / Zbar_f`` is the weak-perspective (scaled orthographic) image of the shape, which the
+orthographic solver (:class:`.solver.GrassmannNRSfM`: rotations, ADMM, stages) reconstructs
+in the units of its input, i.e. with the centred depths ``delta`` (Christy and Horaud's
+paraperspective-to-perspective iteration, 1996).
+
+:class:`PerspectiveNRSfM` / :func:`fit_perspective` iterate: solve on ``x``; read ``delta``
+from the reconstruction's centred depths; solve on ``x (1 + delta)``; repeat.
+
+* Depth sign. An orthographic solve cannot tell a shape from its depth mirror. On the first
+  round both signs of the first solve's depths are solved and the one whose reconstruction
+  has the lower perspective reprojection residual is kept; every later round takes, frame by
+  frame, the sign that agrees with the previous round's depths.
+* Perspective reprojection residual of a round (RMS, normalised units): the solver's
+  reconstruction of its input ``x (1 + delta_prev)`` (its x, y plus the input's per-frame
+  centroid) at the depths ``1 + delta`` it found, projected, against ``x``.
+* Stopping: when the relative change of ``delta`` (``||delta_k - delta_k-1|| / ||delta_k||``)
+  falls below ``tol``, when the residual rises, or after ``max_rounds`` rounds. The round of
+  lowest residual is returned.
+
+Output, in the camera frame and consistent with the pinhole: ``Z = scale (1 + delta)``,
+``X = Z x``, ``Y = Z y``, so ``S`` projects exactly onto the given ``x``. The monocular scale
+is unknown: each frame's mean depth is ``scale`` (default 1: shapes in units of the distance
+to the surface; give the distance in metres for metres). Frames' distances are not recovered.
+
+Shapes: ``W: (2F, P)`` normalised tracks (rows ``2f, 2f+1``: x, y of frame f), ``S: (3F, P)``
+camera frame, ``delta: (F, P)``.
+"""
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .measurement import as_frames, from_frames, InvalidInputError, validate_tracks
+
+#: rounds of the iteration (the first orthographic solve is round 0)
+MAX_ROUNDS = 4
+#: stop when the relative change of the depths falls below this
+TOL = 0.02
+#: 1 + delta is kept at least this (a point cannot reach the camera's plane)
+MIN_RELATIVE_DEPTH = 0.1
+
+
+@dataclass
+class PerspectiveRound:
+    """One round: ``sign`` applied to the solver's depths (per frame, ``(F,)``), the
+    perspective ``residual`` (RMS, normalised units), the relative ``change`` of the depths
+    from the previous round (NaN on round 0), ``delta: (F, P)`` its relative depths (signs
+    applied), ``trial``: a first-round sign trial not kept."""
+    index: int
+    residual: float
+    change: float
+    sign: np.ndarray
+    delta: np.ndarray
+    trial: bool = False
+    fit: float = float('nan')
+
+
+@dataclass
+class PerspectiveResult:
+    """``S: (3F, P)`` camera frame (each frame's mean depth ``scale``), ``delta: (F, P)``
+    relative depths, ``result``: the solver's result of the round kept (``kept``),
+    ``rounds``: every round, ``stopped``: why the iteration ended."""
+    S: np.ndarray
+    delta: np.ndarray
+    result: object
+    kept: int
+    rounds: list = field(default_factory=list)
+    stopped: str = ''
+    scale: float = 1.0
+    clamped: int = 0
+
+    @property
+    def residuals(self):
+        """The perspective residual of every round kept in the sequence (no trials)."""
+        return [r.residual for r in self.rounds if not r.trial]
+
+    def report(self):
+        """The iteration as plain JSON types."""
+        return {'kept': self.kept, 'stopped': self.stopped, 'scale': self.scale,
+                'clamped_points': self.clamped,
+                'rounds': [{'index': r.index, 'residual': r.residual, 'change': r.change,
+                            'flipped_frames': int((r.sign < 0).sum()), 'trial': r.trial}
+                           for r in self.rounds]}
+
+
+def centred_depths(S):
+    """``(F, P)``: each frame's depths of ``S: (3F, P)`` less their mean."""
+    z = as_frames(np.asarray(S, dtype=np.float64), 3)[:, 2, :]
+    return z - z.mean(axis=1, keepdims=True)
+
+
+def weak_perspective_tracks(x, delta):
+    """``x (1 + delta)``: ``(2F, P)`` from normalised tracks ``x: (2F, P)`` and ``delta: (F,
+    P)``."""
+    return x * np.repeat(1.0 + delta, 2, axis=0)
+
+
+def agreeing_signs(delta, previous):
+    """``(F,)`` of +-1: per frame, the sign of ``delta: (F, P)`` that agrees with
+    ``previous: (F, P)`` (non-negative correlation)."""
+    return np.where(np.einsum('fp,fp->f', delta, previous) >= 0.0, 1.0, -1.0)
+
+
+def perspective_residual(S, W_in, x, delta):
+    """RMS of the pinhole reprojection of the solver's reconstruction ``S: (3F, P)`` of its
+    input ``W_in: (2F, P)`` (x, y plus the input's centroid per frame) at relative depths
+    ``1 + delta: (F, P)``, against the normalised tracks ``x: (2F, P)``."""
+    X = as_frames(np.asarray(S, dtype=np.float64), 3)[:, :2, :]
+    X = X - X.mean(axis=2, keepdims=True) + as_frames(W_in, 2).mean(axis=2, keepdims=True)
+    seen = X / np.maximum(1.0 + delta, MIN_RELATIVE_DEPTH)[:, None, :]
+    return float(np.sqrt(np.mean((from_frames(seen) - x) ** 2)))
+
+
+def fit_residual(result, W_in):
+    """The solver's own relative RMS residual of its input ``W_in: (2F, P)``: its report's
+    ``reprojection_relative`` where it has one, else that of ``result.S``'s x, y."""
+    report = getattr(result, 'report', None)
+    value = getattr(report, 'reprojection_relative', None)
+    if value is not None and np.isfinite(value):
+        return float(value)
+    centred = W_in - W_in.mean(axis=1, keepdims=True)
+    X = as_frames(np.asarray(result.S, dtype=np.float64), 3)[:, :2, :]
+    fitted = from_frames(X - X.mean(axis=2, keepdims=True))
+    return float(np.sqrt(np.mean((fitted - centred) ** 2) / np.mean(centred ** 2)))
+
+
+def camera_frame_shapes(x, delta, scale=1.0):
+    """``S: (3F, P)``: ``Z = scale (1 + delta)``, ``X = Z x``, ``Y = Z y`` of normalised tracks
+    ``x: (2F, P)`` and relative depths ``delta: (F, P)``."""
+    Z = scale * np.maximum(1.0 + delta, MIN_RELATIVE_DEPTH)
+    xy = as_frames(x, 2)
+    return from_frames(np.concatenate([xy * Z[:, None, :], Z[:, None, :]], axis=1))
+
+
+class PerspectiveNRSfM:
+    """The projective-depth iteration (see the module docstring) around ``solver`` (an object
+    with ``fit(W) -> result`` whose ``result.S: (3F, P)`` is camera frame; default a
+    :class:`.solver.GrassmannNRSfM` with its default parameters).
+
+    ``max_rounds``: rounds after the first orthographic solve (0: that solve only, its
+    depths taken as relative depths); ``tol``: relative change of the depths that stops the
+    iteration; ``scale``: each frame's mean depth in the output (the unknown monocular
+    scale)."""
+
+    def __init__(self, solver=None, max_rounds=MAX_ROUNDS, tol=TOL, scale=1.0):
+        self.solver = solver
+        self.max_rounds = max_rounds
+        self.tol = tol
+        self.scale = scale
+
+    def get_params(self, deep=True):
+        return {'solver': self.solver, 'max_rounds': self.max_rounds, 'tol': self.tol,
+                'scale': self.scale}
+
+    def set_params(self, **params):
+        for name, value in params.items():
+            if name not in self.get_params():
+                raise InvalidInputError(f'unknown parameter {name!r}')
+            setattr(self, name, value)
+        return self
+
+    def __repr__(self):
+        args = ', '.join(f'{k}={v!r}' for k, v in self.get_params().items())
+        return f'{type(self).__name__}({args})'
+
+    def _checked(self):
+        rounds, tol, scale = self.max_rounds, self.tol, self.scale
+        if isinstance(rounds, bool) or not isinstance(rounds, (int, np.integer)) or rounds < 0:
+            raise InvalidInputError(f'max_rounds={rounds!r}: expected an int >= 0')
+        for name, value in (('tol', tol), ('scale', scale)):
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.number)) or \
+                    not np.isfinite(value) or value <= 0:
+                raise InvalidInputError(f'{name}={value!r}: expected a finite number > 0')
+        if self.solver is None:
+            from .solver import GrassmannNRSfM
+            return GrassmannNRSfM(), int(rounds), float(tol), float(scale)
+        if not callable(getattr(self.solver, 'fit', None)):
+            raise InvalidInputError(f'solver must have a fit(W) method; got '
+                                    f'{type(self.solver).__name__}')
+        return self.solver, int(rounds), float(tol), float(scale)
+
+    def fit(self, W):
+        """Reconstruct the normalised tracks ``W: (2F, P)`` (``K^-1 [u, v, 1]``, see
+        :func:`.camera.normalise`); returns a :class:`PerspectiveResult`."""
+        solver, max_rounds, tol, scale = self._checked()
+        x = validate_tracks(W, min_frames=3, min_points=4)
+        F = x.shape[0] // 2
+        first = solver.fit(x)
+        delta = centred_depths(first.S)
+        rounds = [PerspectiveRound(0, perspective_residual(first.S, x, x, delta), np.nan,
+                                   np.ones(F), delta)]
+        best = (rounds[0].residual, 0, delta, first)
+        stopped = 'max_rounds' if max_rounds else 'max_rounds (0: orthographic solve only)'
+        for index in range(1, max_rounds + 1):
+            if index == 1:
+                trials = [self._round(solver, x, s * delta, index) for s in (1.0, -1.0)]
+                trials.sort(key=lambda trial: trial[0].residual)
+                trials[1][0].trial = True
+                rounds.append(trials[1][0])
+                record, new, result = trials[0]
+            else:
+                record, new, result = self._round(solver, x, delta, index)
+            rounds.append(record)
+            if record.residual < best[0]:
+                best = (record.residual, index, new, result)
+            if record.change < tol:
+                stopped = f'depth change {record.change:.3g} < tol {tol:g}'
+                break
+            if record.residual > best[0]:
+                stopped = f'residual rose ({record.residual:.3g} > {best[0]:.3g})'
+                break
+            delta = new
+        _, kept, delta, result = best
+        clamped = int((1.0 + delta < MIN_RELATIVE_DEPTH).sum())
+        return PerspectiveResult(S=camera_frame_shapes(x, delta, scale), delta=delta,
+                                 result=result, kept=kept, rounds=rounds, stopped=stopped,
+                                 scale=scale, clamped=clamped)
+
+    @staticmethod
+    def _round(solver, x, delta, index):
+        """Solve on ``x (1 + delta)``; returns ``(PerspectiveRound, new delta, result)``, the
+        new depths' signs agreeing with ``delta`` frame by frame."""
+        W_in = weak_perspective_tracks(x, np.maximum(delta, MIN_RELATIVE_DEPTH - 1.0))
+        result = solver.fit(W_in)
+        raw = centred_depths(result.S)
+        sign = agreeing_signs(raw, delta)
+        new = raw * sign[:, None]
+        change = float(np.linalg.norm(new - delta) / max(np.linalg.norm(new), 1e-300))
+        record = PerspectiveRound(index, perspective_residual(result.S, W_in, x, new), change,
+                                  sign, new, fit=fit_residual(result, W_in))
+        return record, new, result
+
+
+def fit_perspective(W, solver=None, *, max_rounds=MAX_ROUNDS, tol=TOL, scale=1.0):
+    """:meth:`PerspectiveNRSfM.fit` of the normalised tracks ``W: (2F, P)`` in one call."""
+    return PerspectiveNRSfM(solver, max_rounds=max_rounds, tol=tol, scale=scale).fit(W)

@@ -1,0 +1,77 @@
+"""The projective-depth iteration (nrsfm/perspective.py) against pinhole ground truth."""
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from grass_nrsfm_ros.nrsfm import camera, metrics, synthetic
+from grass_nrsfm_ros.nrsfm.measurement import (as_frames, from_frames, InvalidInputError,
+                                               to_camera)
+from grass_nrsfm_ros.nrsfm.perspective import (camera_frame_shapes, centred_depths,
+                                               fit_perspective, PerspectiveNRSfM)
+from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
+
+
+class FlippingRigid:
+    """A rigid factorisation whose depth sign flips on every other call (each solve's
+    global depth sign is arbitrary)."""
+
+    def __init__(self):
+        self.calls = 0
+
+    def fit(self, W):
+        self.calls += 1
+        _, S = rigid_factorisation(W)
+        if self.calls % 2 == 0:
+            S = S * np.tile([[1.0], [1.0], [-1.0]], (S.shape[0] // 3, 1))
+        return SimpleNamespace(S=S)
+
+
+def pinhole_shapes(S_camera, distance):
+    """Camera-frame shapes ``(3F, P)`` moved ``distance`` along the optical axis."""
+    X = as_frames(S_camera, 3).copy()
+    X[:, 2] += distance
+    return from_frames(X)
+
+
+def rigid_object(seed=0, F=30, P=200, distance=3.0):
+    seq = synthetic.make_sequence('bending', n_frames=F, n_points=P, seed=seed)
+    frozen = np.repeat(as_frames(seq.S_world, 3)[F // 5][None], F, axis=0)  # curled
+    return pinhole_shapes(to_camera(seq.R, from_frames(frozen)), distance)
+
+
+@pytest.mark.parametrize('seed', [0, 1])
+def test_rigid_object_recovered_exactly_with_a_consistent_sign(seed):
+    S = rigid_object(seed)
+    x = camera.project(S)
+    result = fit_perspective(x, FlippingRigid(), max_rounds=8, tol=1e-4)
+    first = metrics.e3d(camera_frame_shapes(x, result.rounds[0].delta), S, scale=True)
+    error = metrics.e3d(result.S, S, scale=True, reflection=False)
+    assert first > 0.03 and error < 0.004, (first, error, result.report())
+    truth = centred_depths(S) / as_frames(S, 3)[:, 2].mean(axis=1, keepdims=True)
+    kept = [r for r in result.rounds[1:] if not r.trial]
+    assert len(kept) >= 3
+    for r in kept:      # every round's depths agree with the truth's sign, frame by frame
+        assert (np.einsum('fp,fp->f', r.delta, truth) > 0).all(), r.index
+    assert all(r.sign.min() < 0 for r in kept[1:][::2]) or \
+        all(r.sign.min() < 0 for r in kept[::2])     # the flips happened and were undone
+    np.testing.assert_allclose(camera.project(result.S), x, atol=1e-12)
+
+
+def test_output_is_in_the_camera_frame_at_the_given_scale():
+    S = rigid_object(1, F=12, P=60)
+    result = fit_perspective(camera.project(S), FlippingRigid(), max_rounds=3, scale=2.5)
+    depth = as_frames(result.S, 3)[:, 2]
+    np.testing.assert_allclose(depth.mean(axis=1), 2.5)
+    assert (depth > 0).all()
+    assert result.kept == int(np.argmin(result.residuals)) or result.kept in \
+        [r.index for r in result.rounds if r.residual == min(result.residuals)]
+
+
+@pytest.mark.parametrize('kwargs, words', [
+    ({'max_rounds': -1}, 'max_rounds'), ({'tol': 0.0}, 'tol'), ({'scale': np.inf}, 'scale'),
+    ({'solver': object()}, 'fit'),
+])
+def test_bad_parameters_say_why(kwargs, words):
+    with pytest.raises(InvalidInputError, match=words):
+        PerspectiveNRSfM(**kwargs).fit(camera.project(rigid_object(F=5, P=10)))
