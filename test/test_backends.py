@@ -1,4 +1,6 @@
-"""``mapping:=process``: windows solved in a child process of the node, over DDS.
+"""Mapping backends (grass_nrsfm_ros.backends): the inline one and the child process give the
+same Updates for the same windows; a child that dies is restarted. Then ``mapping:=process``
+over DDS: windows solved in a child process of the node.
 
 The node runs with the rigid solver of test/doubles.py (or one that fails or crashes), fed at
 30 Hz from this process: every frame comes back on ``points`` at once and the windows on
@@ -9,30 +11,133 @@ import os
 from pathlib import Path
 import select
 import signal
-import time
+import threading
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-from doubles import bending_sheet
+from doubles import bending_sheet, frames_of, RigidALS, stacked as stacked_results, wait_until
 from grass_nrsfm_ros import cloud
-from grass_nrsfm_ros.mapping import MappingProcess
+from grass_nrsfm_ros.backends import InlineBackend, ProcessBackend
+from grass_nrsfm_ros.mapper import make_mapper
 from grass_nrsfm_ros.nrsfm.measurement import as_frames
 from grass_nrsfm_ros.nrsfm.metrics import e3d
 from grass_nrsfm_ros.params import defaults
+from grass_nrsfm_ros.windowing import Windowing
 
-rclpy = pytest.importorskip('rclpy')
-from builtin_interfaces.msg import Time  # noqa: E402, I100
-from std_msgs.msg import Header  # noqa: E402
-from std_srvs.srv import Trigger  # noqa: E402
-from rosutil import node_with_feeder, publish, RIGID_LAUNCH  # noqa: E402, I100
 
-pytestmark = pytest.mark.ros
+# -- ROS-free: the backends alone -----------------------------------------------------------------
+def closed(W, ids, **kwargs):
+    """``(frames, windows)``: every accepted Frame of ``W: (2F, P)`` and the Windows they close
+    (then the flush), as the pipeline hands them to a backend."""
+    windowing = Windowing(**kwargs)
+    frames, windows = [], []
+    for f, (fid, uv) in enumerate(frames_of(W, ids)):
+        frames.append(windowing.accept(f, fid, uv))
+        windows.append(windowing.push(frames[-1]))
+    windows[-1] = windows[-1] + windowing.flush(waiting=True)
+    return frames, windows
+
+
+def assert_same_updates(a, b):
+    assert [(u.kind, u.index, u.stamps, u.final, u.flipped) for u in a] == \
+        [(u.kind, u.index, u.stamps, u.final, u.flipped) for u in b]
+    for x, y in zip(a, b):
+        assert [r.stamp_ns for r in x.results] == [r.stamp_ns for r in y.results]
+        for r, q in zip(x.results, y.results):
+            np.testing.assert_array_equal(r.ids, q.ids)
+            np.testing.assert_array_equal(r.xyz, q.xyz)
+        assert (x.model is None) == (y.model is None)
+        if x.model is not None:
+            np.testing.assert_array_equal(x.model.mean, y.model.mean)
+            np.testing.assert_array_equal(x.model.R, y.model.R)
+
+
+def test_process_and_inline_backends_give_the_same_updates():
+    """A short sequence with the rigid solver, the default 'resume' warm start: each window
+    waited for (none skipped), the child's Updates equal the inline ones bit for bit."""
+    W, S, ids = bending_sheet(F=50, P=120, noise=0.5)
+    config = {**defaults(), 'refined_from': 'last_window'}
+    frames, windows = closed(W, ids)
+    inline = InlineBackend(make_mapper(config, RigidALS))
+    for step in windows:
+        for window in step:
+            inline.submit(window)
+    expected = inline.updates()
+    assert [u.kind for u in expected] == ['solved'] * 3 + ['released']
+    assert expected[2].results and expected[1].figures['reprojection_residual'] < 0.05
+    ready = threading.Event()
+    backend = ProcessBackend(config, RigidALS, notify=ready.set)
+    got = []
+    try:
+        for frame, step in zip(frames, windows):
+            backend.feed(frame)
+            for window in step:
+                backend.submit(window)
+                while not got or got[-1].index != window.index:     # one at a time
+                    assert ready.wait(60), 'no update from the mapping process'
+                    ready.clear()
+                    got += backend.updates()
+        assert backend.outstanding == 0 and backend.restarts == 0
+    finally:
+        backend.close()
+    assert not backend.alive
+    assert_same_updates(got, expected)
+    rows = np.concatenate([np.arange(3 * r.stamp_ns, 3 * r.stamp_ns + 3) for r in got[1].results])
+    assert e3d(stacked_results(got[1].results, ids), S[rows]) < 0.05
+
+
+def test_a_newer_window_replaces_the_one_waiting_in_the_child():
+    W, S, ids = bending_sheet(F=60, P=80)
+    frames, windows = closed(W, ids)
+    ready = threading.Event()
+    backend = ProcessBackend(defaults(), RigidALS, notify=ready.set)
+    got = []
+    try:
+        for frame in frames:
+            backend.feed(frame)
+        for step in windows:                     # all at once: the child skips some
+            for window in step:
+                backend.submit(window)
+        while backend.outstanding:
+            assert ready.wait(60), 'no update from the mapping process'
+            ready.clear()
+            got += backend.updates()
+        got += backend.updates()
+    finally:
+        backend.close()
+    kinds = {u.index: (u.kind, u.message) for u in got}
+    assert sorted(kinds) == [w.index for step in windows for w in step]
+    assert kinds[max(kinds)][0] in ('solved', 'released')
+    assert all(kind == 'solved' or (kind, message) == ('dropped', 'skipped')
+               for kind, message in kinds.values() if kind != 'released')
+
+
+def test_a_mapping_process_without_on_exit_restarts_its_dead_child():
+    """The handle alone (no ``on_exit``, as a researcher might use it): a killed child is
+    restarted, not a TypeError on the receiver thread."""
+    backend = ProcessBackend(defaults())
+    try:
+        assert wait_until(lambda: backend.pid is not None)
+        first = backend.pid
+        os.kill(first, signal.SIGKILL)
+        assert wait_until(lambda: backend.restarts == 1 and backend.pid not in (None, first))
+        assert backend.alive
+    finally:
+        backend.close()
+    assert not backend.alive
+
+
+# -- mapping:=process over DDS ------------------------------------------------------------------
 PERIOD = 1 / 30
 T0 = 1_700_000_000_000_000_000
 PROCESS = ['-p', 'mapping:=process', '-p', 'context_frames:=0']
-FAILING_LAUNCH = RIGID_LAUNCH.replace('RigidALS', 'FailsSecondWindow')
-CRASHING_LAUNCH = RIGID_LAUNCH.replace('RigidALS', 'KillsItsProcessOnce')
+
+
+def ros():
+    """rosutil (it needs rclpy: the test is skipped without ROS 2)."""
+    return pytest.importorskip('rosutil')
 
 
 def stamp_ns(f):
@@ -45,6 +150,8 @@ def stamp_of(msg):
 
 def frames(W, ids, first=0):
     """Tracks clouds of ``W: (2F, P)``, stamped from frame ``first`` at 30 Hz."""
+    from builtin_interfaces.msg import Time
+    from std_msgs.msg import Header
     out = []
     for f, uv in enumerate(as_frames(W, 2)):
         ns = stamp_ns(first + f)
@@ -55,11 +162,9 @@ def frames(W, ids, first=0):
 
 def stacked(messages, ids):
     """``(3F, P)`` of ``messages`` in stamp order, columns in the order of ``ids``."""
-    blocks = []
-    for msg in sorted(messages, key=stamp_of):
-        got, xyz = cloud.decode_points(msg)
-        blocks.append(xyz[np.argsort(got)][np.searchsorted(np.sort(ids), ids)].T)
-    return np.vstack(blocks)
+    decoded = [SimpleNamespace(ids=got, xyz=xyz) for got, xyz in
+               (cloud.decode_points(m) for m in sorted(messages, key=stamp_of))]
+    return stacked_results(decoded, ids)
 
 
 def mapping_pid(feeder, node_pid):
@@ -84,12 +189,15 @@ def exits_within(pid, timeout):
         os.close(fd)
 
 
+@pytest.mark.ros
 def test_every_frame_on_points_windows_refined_reset_and_clean_exit(ros_env, tmp_path):
+    rosutil = ros()
+    from std_srvs.srv import Trigger
     log = tmp_path / 'node.log'
     W, S, ids = bending_sheet(F=60, noise=0.5)
-    with node_with_feeder(ros_env, log, PROCESS, points_depth=60) as (proc, feeder):
+    with rosutil.node_with_feeder(ros_env, log, PROCESS, points_depth=60) as (proc, feeder):
         child = mapping_pid(feeder, proc.pid)
-        publish(feeder, frames(W, ids))
+        rosutil.publish(feeder, frames(W, ids))
         assert feeder.wait_for(lambda: len(feeder.points) >= 60
                                and len(feeder.refined) >= 60, 60), log.read_text()
         counts = feeder.accounted(60)
@@ -110,7 +218,7 @@ def test_every_frame_on_points_windows_refined_reset_and_clean_exit(ros_env, tmp
         future = client.call_async(Trigger.Request())
         assert feeder.wait_for(future.done, 10)
         assert 'windows in the mapping process' in future.result().message
-        publish(feeder, frames(W[:60], ids, first=60))
+        rosutil.publish(feeder, frames(W[:60], ids, first=60))
         assert feeder.wait_for(lambda: len(feeder.refined) >= 90, 30), log.read_text()
         assert sorted(stamp_of(m) for m in feeder.refined)[60:] == \
             [stamp_ns(f) for f in range(60, 90)]
@@ -120,12 +228,15 @@ def test_every_frame_on_points_windows_refined_reset_and_clean_exit(ros_env, tmp
     assert 'Traceback' not in log.read_text()
 
 
+@pytest.mark.ros
 def test_a_failing_window_is_reported_and_nothing_else_is_lost(ros_env, tmp_path):
+    rosutil = ros()
+    launch = rosutil.RIGID_LAUNCH.replace('RigidALS', 'FailsSecondWindow')
     log = tmp_path / 'node.log'
     W, S, ids = bending_sheet(F=60, noise=0.5)
-    with node_with_feeder(ros_env, log, PROCESS, launch=FAILING_LAUNCH,
-                          points_depth=60) as (proc, feeder):
-        publish(feeder, frames(W, ids))
+    with rosutil.node_with_feeder(ros_env, log, PROCESS, launch=launch,
+                                  points_depth=60) as (proc, feeder):
+        rosutil.publish(feeder, frames(W, ids))
         assert feeder.wait_for(lambda: len(feeder.points) >= 60
                                and len(feeder.refined) >= 60, 60), log.read_text()
         counts = feeder.accounted(60)
@@ -139,14 +250,17 @@ def test_a_failing_window_is_reported_and_nothing_else_is_lost(ros_env, tmp_path
     assert sorted(stamp_of(m) for m in feeder.refined) == [stamp_ns(f) for f in range(60)]
 
 
+@pytest.mark.ros
 def test_a_dying_child_is_reported_restarted_and_never_outlives_the_node(ros_env, tmp_path):
+    rosutil = ros()
+    launch = rosutil.RIGID_LAUNCH.replace('RigidALS', 'KillsItsProcessOnce')
     log = tmp_path / 'node.log'
     env = {**ros_env, 'GRASS_TEST_CRASH_MARKER': str(tmp_path / 'crashed')}
     W, S, ids = bending_sheet(F=120, noise=0.5)
-    with node_with_feeder(env, log, PROCESS, launch=CRASHING_LAUNCH,
-                          points_depth=120) as (proc, feeder):
+    with rosutil.node_with_feeder(env, log, PROCESS, launch=launch,
+                                  points_depth=120) as (proc, feeder):
         first = mapping_pid(feeder, proc.pid)
-        publish(feeder, frames(W, ids))
+        rosutil.publish(feeder, frames(W, ids))
         assert feeder.wait_for(lambda: len(feeder.points) >= 120, 30), log.read_text()
         counts = feeder.accounted(120, timeout=60)
         assert counts is not None and counts['frames published'] == 120, log.read_text()
@@ -165,28 +279,3 @@ def test_a_dying_child_is_reported_restarted_and_never_outlives_the_node(ros_env
         proc.wait(10)
         assert exits_within(second, 10)
     assert 'the mapping process exited with code -9: restarted it' in log.read_text()
-
-
-def wait_until(condition, timeout=60.0):
-    """Poll ``condition()`` until it holds (True) or ``timeout`` s pass (False)."""
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.02)
-    return True
-
-
-def test_a_mapping_process_without_on_exit_restarts_its_dead_child():
-    """The handle alone (no ``on_exit``, as a researcher might use it): a killed child is
-    restarted, not a TypeError on the receiver thread."""
-    mapper = MappingProcess(defaults())
-    try:
-        assert wait_until(lambda: mapper.pid is not None)
-        first = mapper.pid
-        os.kill(first, signal.SIGKILL)
-        assert wait_until(lambda: mapper.restarts == 1 and mapper.pid not in (None, first))
-        assert mapper.alive
-    finally:
-        mapper.close()
-    assert not mapper.alive
