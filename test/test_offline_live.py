@@ -59,11 +59,11 @@ def assert_same(live, offline, seq, stamps, what):
     assert abs(e3d(S_live, seq.S) - e3d(S_off, seq.S)) < 1e-4
 
 
-@pytest.mark.parametrize('mapping', ['inline', 'worker', 'process'])
+@pytest.mark.parametrize('mapping', ['inline', 'process'])
 def test_offline_reconstruction_equals_the_live_node(ros_env, tmp_path, mapping):
     """``mapping:=inline`` solves each window before the next frame, as the offline path does:
-    ``points`` and ``points/refined`` are the same. On the worker thread or in the mapping
-    process the model swaps in when its solve ends, so ``points`` depend on timing;
+    ``points`` and ``points/refined`` are the same. In the mapping process the model swaps in
+    when its solve ends, so ``points`` depend on timing;
     ``points/refined`` (the windows, none skipped at 10 Hz) are still the same."""
     seq = make_sequence('inflating', n_frames=40, n_points=300, seed=1)
     stamps = T0 + PERIOD_NS * np.arange(seq.n_frames, dtype=np.int64)

@@ -43,7 +43,7 @@ def test_ros_layout_and_flat_mapping(tmp_path):
     ('metres_per_pixel: .nan', 'must be finite'),
     ('warm_start: true', 'warm_start=True: expected str, got bool'),
     ('warm_start: warm',
-     r"warm_start='warm': expected one of \['model', 'full', 'off', 'resume'\]"),
+     r"warm_start='warm': expected one of \['resume', 'model'\]"),
     ('window_size: 10\nwindow_stride: 11', 'window_stride=11 exceeds window_size=10'),
     ('- 1', 'expected a mapping'),
 ])
@@ -124,7 +124,7 @@ def test_node_declares_parameters_from_the_file(monkeypatch, tmp_path):
                      '-p', 'frame_id:=cam'], context=context)
     try:
         node = ReconstructionNode(context=context)
-        windows = node.pipeline.windows
+        windows = node.pipeline.windowing
         assert windows.window_size == 20 and windows.window_stride == 10
         assert node.get_parameter('frame_id').value == 'cam'
         described = node.describe_parameters(['window_size', 'metres_per_pixel'])
