@@ -1,0 +1,121 @@
+"""Perspective: the projective-depth iteration (:mod:`grass_nrsfm_ros.nrsfm.perspective`) on
+pinhole sequences with ground truth: a rendered face (perfect tracks, the front end's
+renderer), a synthetic sheet moved in front of a pinhole, and the real 10-frame subsets
+kinect_paper10 / tshirt10. e3D with a per-frame scale throughout.
+
+Prints, per sequence: the orthographic e3D of the same points, the first (orthographic)
+solve on the normalised tracks, the iteration's result, its rounds, and rigid factorisation;
+writes ``bench/results/perspective.json``. ``python -m bench.perspective [--smoke|--full]``.
+"""
+import sys
+import time
+
+import numpy as np
+
+from grass_nrsfm_ros.nrsfm import camera, faces, metrics, synthetic
+from grass_nrsfm_ros.nrsfm.measurement import as_frames, from_frames
+from grass_nrsfm_ros.nrsfm.perspective import camera_frame_shapes, fit_perspective
+from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
+from grass_nrsfm_ros.nrsfm.solver import GrassmannNRSfM
+from . import common
+
+TARGETS = {'face_ratio_bar': 1.2, 'face_ratio_goal': 1.05, 'kinect_paper10_bar': 0.09,
+           'tshirt10_bar': 0.11}
+
+
+def e3d(S, S_gt):
+    return metrics.e3d(S, S_gt, scale=True)
+
+
+def face_shapes(F, P, seed=0):
+    """Camera-frame ``(3F, P)`` surface samples of the rendered face, or None without the
+    model."""
+    from grass_nrsfm_ros.frontend import scenes
+    try:
+        scene = scenes.face_scene(F, seed=seed)
+    except FileNotFoundError:
+        return None
+    tri, bary = faces.sample_surface(scene.vertices[0], scene.triangles, P,
+                                     np.random.default_rng(seed))
+    X = np.einsum('fncd,nc->fnd', scene.vertices[:, scene.triangles[tri], :], bary)
+    return from_frames(X.transpose(0, 2, 1))
+
+
+def sheet_shapes(kind, F, P, seed, distance):
+    """A synthetic sheet's camera-frame shapes ``distance`` (its size is about 2) along the
+    optical axis."""
+    X = as_frames(synthetic.make_sequence(kind, n_frames=F, n_points=P, seed=seed).S, 3).copy()
+    X[:, 2] += distance
+    return from_frames(X)
+
+
+def orthographic(S):
+    """``(2F, P)``: the x, y rows of ``S: (3F, P)``."""
+    return from_frames(as_frames(S, 3)[:, :2, :])
+
+
+def case(name, S, x, max_rounds):
+    common.log(f'perspective: {name}')
+    row = {'sequence': name, 'F': x.shape[0] // 2, 'P': x.shape[1]}
+    if S is not None and np.all(as_frames(S, 3)[:, 2] > 0):
+        row['e3d_orthographic_projection'] = e3d(GrassmannNRSfM().fit(orthographic(S)).S, S)
+    t = time.process_time()
+    result = fit_perspective(x, max_rounds=max_rounds)
+    row['seconds_cpu'] = time.process_time() - t
+    row['e3d_first_solve_S'] = e3d(_first_S(x), S)
+    row['e3d_perspective'] = e3d(result.S, S)
+    row['e3d_rigid'] = e3d(rigid_factorisation(x)[1], S)
+    row['rounds'] = [{'index': r.index, 'trial': r.trial, 'residual': r.residual,
+                      'change': r.change, 'e3d': e3d(camera_frame_shapes(x, r.delta), S)}
+                     for r in result.rounds]
+    row['kept'], row['stopped'] = result.kept, result.stopped
+    if 'e3d_orthographic_projection' in row:
+        row['ratio_to_orthographic'] = row['e3d_perspective'] / row['e3d_orthographic_projection']
+        row['first_solve_ratio'] = row['e3d_first_solve_S'] / row['e3d_orthographic_projection']
+    return row
+
+
+_cache = {}
+
+
+def _first_S(x):
+    """The solver's own shapes on the normalised tracks (today's path with normalised
+    input)."""
+    key = id(x)
+    if key not in _cache:
+        _cache[key] = GrassmannNRSfM().fit(x).S
+    return _cache[key]
+
+
+def run(mode):
+    rows = []
+    F, P = mode.pick((20, 200), (40, 400), (100, 1000))
+    rounds = mode.pick(2, 3, 4)
+    S = face_shapes(F, P)
+    if S is not None:
+        rows.append(case(f'rendered_face_{F}x{P}', S, camera.project(S), rounds))
+    for seed in mode.pick((1,), (0, 1), (0, 1, 2)):
+        S = sheet_shapes('bending', F, P, seed, 5.0)
+        rows.append(case(f'pinhole_bending_{F}x{P}_seed{seed}', S, camera.project(S), rounds))
+    for name in ('kinect_paper10', 'tshirt10'):
+        loaded = common.load_dataset(name)
+        if loaded is not None:
+            root = common.data_root()
+            with np.load(root / common.DATASETS[name][0]) as npz:
+                x = camera.normalise(npz['W_px'].astype(np.float64), npz['K'])
+            rows.append(case(name, loaded[1], x, 4))
+    for row in rows:
+        ortho = row.get('e3d_orthographic_projection', float('nan'))
+        print(f"{row['sequence']:32s} ortho {ortho:.4f}  first solve "
+              f"{row['e3d_first_solve_S']:.4f}"
+              f"  perspective {row['e3d_perspective']:.4f}  rigid {row['e3d_rigid']:.4f}"
+              f"  ratio {row.get('ratio_to_orthographic', float('nan')):.2f}  kept round "
+              f"{row['kept']} ({row['stopped']})")
+    path = common.write_result(mode, 'perspective', {'rows': rows, 'targets': TARGETS})
+    common.log(f'wrote {path}')
+    return rows
+
+
+if __name__ == '__main__':
+    name = 'smoke' if '--smoke' in sys.argv else 'full' if '--full' in sys.argv else 'quick'
+    run(common.Mode(name))
