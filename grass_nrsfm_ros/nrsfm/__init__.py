@@ -4,7 +4,7 @@ Conventions (see :mod:`.measurement`): ``W: (2F, P)`` tracks, ``S: (3F, P)`` cam
 shapes, ``R: (F, 3, 3)`` world-to-camera rotations. The estimator is :mod:`.solver`, Algorithm 1
 :mod:`.admm`, its add-ons :mod:`.stages`, the parameters :mod:`.schema`.
 """
-from .admm import AdmmCheckpoint, AdmmSettings, AdmmState
+from .admm import AdmmSettings, AdmmState
 from .measurement import centre, InvalidInputError, validate_tracks
 from .metrics import e3d, e3d_akhter, procrustes_align, rotation_error
 from .problem import NRSfMResult, SolverReport, WarmStart
@@ -12,7 +12,7 @@ from .rotation import align_rotations, estimate_rotations, rigid_factorisation
 from .schema import Param, SOLVER_PARAMS
 from .solver import GrassmannNRSfM
 
-__all__ = ['AdmmCheckpoint', 'AdmmSettings', 'AdmmState', 'InvalidInputError', 'centre',
+__all__ = ['AdmmSettings', 'AdmmState', 'InvalidInputError', 'centre',
            'validate_tracks', 'e3d', 'e3d_akhter', 'procrustes_align', 'rotation_error',
            'GrassmannNRSfM', 'NRSfMResult', 'SolverReport', 'WarmStart', 'align_rotations',
            'estimate_rotations', 'rigid_factorisation', 'Param', 'SOLVER_PARAMS']

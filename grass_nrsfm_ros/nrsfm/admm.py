@@ -17,9 +17,7 @@ This module owns:
 * :class:`AdmmSettings`: the numbers of one solve (absolute gamma, sizes, switches);
 * :class:`AdmmState`: the variables and one iteration (:meth:`AdmmState.iterate`);
 * :func:`stop_reason`: the stopping rule (every gap below GAP_TOLERANCE, or beta at beta_max);
-* :func:`run`: iterate until the rule says stop;
-* :class:`AdmmCheckpoint`: the full state in the input's column order, which
-  :meth:`AdmmState.checkpoint` takes and :meth:`AdmmState.resume` continues from, bit for bit.
+* :func:`run`: iterate until the rule says stop.
 
 Layout: the ``(F, 3, P)`` arrays are stored column-permuted so that each spatial group is a
 contiguous slice (the paper's T2); one iteration makes two sweeps over cache-sized column
@@ -43,8 +41,6 @@ BLOCK_BYTES = 1 << 20
 #: storage of the (F, 3, P) iterates when F * P >= FLOAT32_MIN_SIZE
 STORAGE_DTYPE = np.float32
 FLOAT32_MIN_SIZE = 1 << 20
-#: the per-iteration fields of an AdmmState a checkpoint holds (besides settings-derived ones)
-STATE_ARRAYS = ('C_s', 'J_s', 'Y2', 'C_t', 'J_t', 'Y3', 'Omega_s', 'Omega_t', 't_edges')
 
 
 @dataclass(frozen=True)
@@ -75,30 +71,6 @@ class AdmmSettings:
     K_t: int
     N_s: int
     N_t: int
-
-
-@dataclass
-class AdmmCheckpoint:
-    """Everything :meth:`AdmmState.resume` needs to continue a run, in the input's column
-    order: ``S``, ``S_sharp``, ``Y1: (F, 3, P)`` world frame, ``labels: (P,)`` spatial groups,
-    ``order: (P,)`` the internal column order, ``s_bases`` (one ``(3F, N_s)`` per group),
-    ``t_bases`` (one ``(f_k, r_k), (r_k,)`` pair per temporal block), ``arrays``: the
-    coefficients, multipliers and kernels named in STATE_ARRAYS."""
-
-    iteration: int
-    beta: float
-    beta_reached_max: bool
-    moves: int
-    smooth: bool                # the smoothness prior on
-    S: np.ndarray
-    S_sharp: np.ndarray
-    Y1: np.ndarray
-    labels: np.ndarray
-    order: np.ndarray
-    s_bases: list
-    t_bases: list
-    arrays: dict
-    nuc_jt: float = 0.0
 
 
 @dataclass
@@ -226,42 +198,6 @@ class AdmmState:
         self.X = np.empty(3 * F * P, dtype=dt)   # X = S - Y1/beta, block-major (blocked_view)
         self.smoother = (TemporalSmoothness(R, smoothness_weight(Wn, s.smoothness), P)
                          if s.smoothness > 0 and smooth else None)
-
-    # resumable state ---------------------------------------------------------------------------
-    def checkpoint(self):
-        """The full state as an :class:`AdmmCheckpoint` (copies, input column order)."""
-        def original(arr):
-            out = np.empty_like(arr)
-            out[:, :, self.order] = arr
-            return out
-        labels = np.empty_like(self.labels)
-        labels[self.order] = self.labels
-        return AdmmCheckpoint(
-            iteration=self.iteration, beta=self.beta, beta_reached_max=self.beta_reached_max,
-            moves=self.moves, smooth=self.smooth, S=original(self.S), S_sharp=original(self.Ssh),
-            Y1=original(self.Y1), labels=labels, order=self.order.copy(),
-            s_bases=[b.copy() for b in self.s_bases],
-            t_bases=[(v.copy(), sv.copy()) for v, sv in self.t_bases],
-            arrays={name: np.array(getattr(self, name)) for name in STATE_ARRAYS},
-            nuc_jt=self.nuc_jt)
-
-    @classmethod
-    def resume(cls, Wn, R, checkpoint, settings):
-        """The state ``checkpoint`` describes, on tracks ``Wn: (2F, P)`` and rotations
-        ``R: (F, 3, 3)``; iterating it continues the run that took the checkpoint."""
-        c = checkpoint
-        state = cls.__new__(cls)
-        state._layout(Wn, R, settings, np.asarray(c.labels), np.asarray(c.order), c.smooth)
-        state.iteration, state.beta = c.iteration, c.beta
-        state.beta_reached_max, state.moves, state.nuc_jt = c.beta_reached_max, c.moves, c.nuc_jt
-        state.S = np.asarray(c.S)[:, :, state.order].astype(state.dtype)
-        state.Ssh = np.asarray(c.S_sharp)[:, :, state.order].astype(state.dtype)
-        state.Y1 = np.asarray(c.Y1)[:, :, state.order].astype(state.dtype)
-        state.s_bases = [b.copy() for b in c.s_bases]
-        state.t_bases = [(v.copy(), sv.copy()) for v, sv in c.t_bases]
-        for name in STATE_ARRAYS:
-            setattr(state, name, np.array(c.arrays[name]))
-        return state
 
     # spatial Grassmann points ------------------------------------------------------------------
     def _group(self, k):
