@@ -309,6 +309,7 @@ def test_refined_from_the_last_window_loses_no_frame_without_context():
     assert pipe.frames_lost == 0
 
 
+@pytest.mark.slow
 def test_refined_from_the_last_window_is_more_accurate():
     """Measured (50 x 300, the Grassmannian solver): e3D of points/refined from the first
     window / the last: articulated 0.0555 / 0.0100, twisting 0.3903 / 0.0685."""

@@ -18,6 +18,8 @@ from grass_nrsfm_ros.nrsfm.metrics import e3d
 from grass_nrsfm_ros.nrsfm.synthetic import make_sequence
 from grass_nrsfm_ros.pipeline import make_pipeline, reconstruct_live
 
+pytestmark = pytest.mark.slow          # each case solves whole sequences with GrassmannNRSfM
+
 
 def streamed(W, factory, **options):
     """``W: (2F, P)`` through the pipeline (window 30, stride 10, ``options``):
