@@ -10,6 +10,7 @@ import sys
 import pytest
 
 from bench import table
+from bench.__main__ import chosen_suites, QUICK_SKIPS, SUITES as ALL_SUITES
 
 REPO = Path(__file__).resolve().parents[1]
 SUITES = ('accuracy', 'noise', 'parameters', 'scale', 'streaming', 'rotations')
@@ -46,7 +47,8 @@ def finite_numbers(x):
 def test_smoke_json_has_finite_numbers_and_expected_keys(smoke_results, suite):
     doc = json.loads((smoke_results / f'{suite}.json').read_text())
     assert doc['suite'] == suite and doc['mode'] == 'smoke'
-    assert {'environment', 'rows', 'skipped', 'seconds'} <= set(doc)
+    assert {'environment', 'rows', 'skipped', 'seconds', 'cpu_seconds'} <= set(doc)
+    assert doc['cpu_seconds'] > 0
     for skip in doc['skipped']:
         # the only acceptable skip is a module that is not there yet, never a crash
         assert 'not available' in skip['why'], skip
@@ -57,6 +59,13 @@ def test_smoke_json_has_finite_numbers_and_expected_keys(smoke_results, suite):
         for key in ROW_KEYS[suite]:
             assert isinstance(row.get(key), (int, float)), (suite, key, row.get(key))
         assert finite_numbers(row), row
+
+
+def test_quick_run_leaves_out_the_research_suites_unless_named():
+    assert chosen_suites('quick') == [s for s in ALL_SUITES if s not in QUICK_SKIPS]
+    assert QUICK_SKIPS and set(QUICK_SKIPS) < set(ALL_SUITES)
+    assert chosen_suites('full') == chosen_suites('smoke') == list(ALL_SUITES)
+    assert chosen_suites('quick', ['rotations']) == ['rotations']
 
 
 def test_accuracy_errors_are_errors(smoke_results):
