@@ -4,7 +4,11 @@ Generates :func:`~grass_nrsfm_ros.nrsfm.synthetic.default_sequence` (no external
 1. reconstructs it whole with GrassmannNRSfM and with rigid factorisation, printing e3D;
 2. converts it to a tracks bag and runs the node's live pipeline over it offline,
    recording tracks, ground truth and reconstructed points in an MCAP bag, printing e3D;
-3. draws the last frame (estimate beside ground truth) as a PNG.
+3. draws the last frame (estimate beside ground truth) as a PNG;
+4. starts from images: a textured bending sheet rendered by :mod:`~grass_nrsfm_ros.frontend.
+   scenes` (made here, no files), tracked by :class:`~grass_nrsfm_ros.frontend.DenseTracker`,
+   reconstructed whole and by the live pipeline; prints the tracking error (px) and e3D
+   against the renderer's ground truth.
 """
 from pathlib import Path
 import shutil
@@ -15,11 +19,16 @@ import numpy as np
 from grass_nrsfm_ros import bag
 from grass_nrsfm_ros.commands.reconstruct import reconstruct_bag
 from grass_nrsfm_ros.commands.render import renderer
+from grass_nrsfm_ros.commands.track import tracks_matrix
+from grass_nrsfm_ros.frontend import DenseTracker, scenes
 from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM, synthetic
 from grass_nrsfm_ros.nrsfm.metrics import procrustes_align
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
 from grass_nrsfm_ros.params import defaults
-from grass_nrsfm_ros.pipeline import make_pipeline
+from grass_nrsfm_ros.pipeline import make_pipeline, reconstruct_live
+
+#: the sequence from images: frames, image size (H, W), grid step in pixels
+IMAGE_FRAMES, IMAGE_SIZE, IMAGE_STEP = 40, (240, 320), 5
 
 
 def add_arguments(parser):
@@ -96,4 +105,53 @@ def run(args):
     picture(result, seq, out / 'last_frame.png')
     print(f'wrote {out / "reconstruction.npz"}, {points_bag}/ (tracks, ground truth, points; '
           f'MCAP) and {out / "last_frame.png"}')
+    from_images()
     return 0
+
+
+def from_images(n_frames=IMAGE_FRAMES):
+    """Rendered images -> DenseTracker -> the solver and the live pipeline; prints the
+    tracking error against the renderer's truth and e3D (per-frame Procrustes with scale:
+    pixels against scene units) of the tracks alive in every frame."""
+    started = time.perf_counter()
+    H, W = IMAGE_SIZE
+    scene = scenes.sheet_scene('bending', n_frames=n_frames, size=IMAGE_SIZE, focal=1.3 * H,
+                               extent_px=int(0.8 * H), grid=(48, 36), seed=0)
+    tracker = DenseTracker(IMAGE_STEP, scene.mask(0), K=scene.K)
+    tracked = [tracker.track(image) for image in scene.frames()]
+    W_all, ids = tracks_matrix([t.ids for t in tracked], [t.uv for t in tracked])
+    complete = np.isfinite(W_all).all(axis=0)
+    tracks, ids = W_all[:, complete], ids[complete]
+    truth = scene.truth(tracks[0:2].T)                       # the surface points tracked
+    uv = np.stack([tracks[0::2], tracks[1::2]], axis=-1)      # (F, P, 2)
+    error = np.linalg.norm(uv - truth.uv, axis=-1)[truth.visible]
+    S_gt = truth.X.transpose(0, 2, 1).reshape(-1, ids.size)  # (3F, P)
+    print(f'from images: {n_frames} frames {W} x {H} rendered and tracked (step {IMAGE_STEP}), '
+          f'{int(np.isfinite(W_all[0]).sum())} tracks in frame 0, {ids.size} in every frame; '
+          f'tracking error median {np.median(error):.2f} px, p95 '
+          f'{np.percentile(error, 95):.2f} px; {time.perf_counter() - started:.1f} s')
+    started = time.perf_counter()
+    result = GrassmannNRSfM().fit(tracks)
+    _, S_rigid = rigid_factorisation(tracks)
+    stamps = np.arange(n_frames, dtype=np.int64) * 33_333_333
+    pipeline = make_pipeline(defaults())
+    try:
+        points, refined, _ = reconstruct_live(pipeline, stamps, [(ids, uv[f]) for f in
+                                                                 range(n_frames)])
+    finally:
+        pipeline.close()
+    live, done = (results_e3d(r, stamps, ids, S_gt) for r in (points, refined))
+    print(f'from images: whole sequence e3D {e3d(result.S, S_gt, scale=True):.4f} (rigid '
+          f'factorisation {e3d(S_rigid, S_gt, scale=True):.4f}); live e3D {live:.4f} as '
+          f'tracked on arrival, {done:.4f} refined; {time.perf_counter() - started:.1f} s')
+
+
+def results_e3d(results, stamps, ids, S_gt):
+    """e3D (with scale) of FrameResults against ``S_gt: (3F, P)`` over the tracks ``ids``."""
+    frame_of = {int(s): f for f, s in enumerate(stamps)}
+    estimate, truth = [], []
+    for r in results:
+        f = frame_of[int(r.stamp_ns)]
+        estimate.append(r.xyz.T)
+        truth.append(S_gt[3 * f:3 * f + 3, np.searchsorted(ids, r.ids)])
+    return e3d(np.vstack(estimate), np.vstack(truth), scale=True)
