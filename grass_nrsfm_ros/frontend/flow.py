@@ -15,8 +15,8 @@ Shapes and units:
   or 'bgr'), uint8, uint16 (scaled to 8 bits by the bit depth of the first uint16 frame) or
   float in [0, 1];
 * ``region``: None (the whole image), a bool mask ``(H, W)`` of the first frame (it moves
-  with the surface: at each re-anchoring it becomes the grid cells its tracks hold and
-  their neighbours) or a rectangle ``(x0, y0, x1, y1)`` of pixels, bounds included (fixed
+  with the surface: at each re-anchoring it becomes the grid cells its tracks hold, holes
+  closed) or a rectangle ``(x0, y0, x1, y1)`` of pixels, bounds included (fixed
   in the image);
 * :class:`TrackFrame`: ``ids: (P,) uint32``, ``uv: (P, 2) float64`` pixels (pixel centres at
   integer coordinates, u to the right, v down), ``age: (P,) int64`` frames since birth,
@@ -32,6 +32,7 @@ import warnings
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
 #: flow methods: a DIS preset from the reference to the frame (its last flow as the initial
 #: flow), optionally refined per track by Lucas-Kanade from the reference ('+lk'); or DIS
@@ -46,6 +47,7 @@ _DIS_PRESETS = {'dis-ultrafast': cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST,
 DEFAULT_METHOD = 'dis-fast+lk'
 _PATCH_RADIUS = 5                  # photometric check and texture test on 11 x 11 patches
 _MAX_REFINEMENT = 1.0              # px: DIS and its LK refinement disagreeing more: failed
+_COVER_RADIUS = 0.75               # grid steps: a grid point with no track this near is uncovered
 _BORDER = 2.0                      # a track closer than this to the image edge has left it
 
 
@@ -89,7 +91,7 @@ class DenseTracker:
     reference patch dies), ``fb_max_px`` (forward-backward distance above which a track dies;
     None: no forward-backward check). Re-anchoring: when the median ZNCC of the tracks falls
     below ``reanchor_zncc``, when more than ``reanchor_uncovered`` of the region's grid cells
-    hold no track (a cell is covered by a track in it or in the eight around it), or every
+    hold no track (a grid point is covered by a track within 0.75 steps), or every
     ``reanchor_every`` frames (None: never by count). Births only on cells whose reference
     patch has a grey-level standard deviation of at least ``min_texture``. ``lk_window``
     (odd) and ``lk_levels`` (pyramid levels; None: 0 after DIS from the reference, 1 after
@@ -323,7 +325,7 @@ class DenseTracker:
 
     def _carried_region(self, shape):
         """The region in the current frame: a mask moves with its tracks (the grid cells
-        holding tracks and their neighbours); a rectangle or the whole image stays where it is. A
+        holding tracks, holes closed); a rectangle or the whole image stays where it is. A
         mask whose tracks are all gone starts again from the first frame's."""
         if not isinstance(self.region, np.ndarray):
             return self._region_ref
@@ -470,14 +472,12 @@ def _cell_index(points, step, shape):
 
 
 def _covered(cells, uv, step, shape):
-    """``(G,)`` bool: which grid points have one of the tracks ``uv`` in their cell or the
-    eight around it (a hole must be two cells wide before tracks are born in it)."""
-    H, W = shape
-    rows, cols = -(-H // step), -(-W // step)
-    occupied = np.zeros(rows * cols, np.uint8)
-    occupied[_cell_index(uv, step, shape)[0]] = 1
-    near = cv2.dilate(occupied.reshape(rows, cols), np.ones((3, 3), np.uint8)).ravel()
-    return near[_cell_index(cells, step, shape)[0]].astype(bool)
+    """``(G,)`` bool: which grid points have one of the tracks ``uv`` within
+    ``_COVER_RADIUS`` grid steps (``shape`` unused: kept for the callers' symmetry)."""
+    if len(uv) == 0 or len(cells) == 0:
+        return np.zeros(len(cells), bool)
+    distance, _ = cKDTree(uv).query(cells, distance_upper_bound=_COVER_RADIUS * step)
+    return np.isfinite(distance)
 
 
 def _uncovered_share(cells, uv, step, shape):
@@ -498,12 +498,16 @@ def _compose(first, second):
                              borderMode=cv2.BORDER_REPLICATE)
 
 
-def _occupied_mask(uv, step, shape):
-    """The grid cells holding tracks and their neighbours, as a pixel mask ``(H, W)``."""
+def _occupied_mask(uv, step, shape, close_cells=9):
+    """The grid cells holding tracks, with holes up to ``close_cells`` cells across closed
+    (where tracks died inside the surface, new ones can be born), as a pixel mask
+    ``(H, W)``; it does not grow past the outer tracks."""
     H, W = shape
     index, n = _cell_index(uv, step, shape)
     rows, cols = -(-H // step), -(-W // step)
     cells = np.zeros(n, np.uint8)
     cells[index] = 1
-    cells = cv2.dilate(cells.reshape(rows, cols), np.ones((3, 3), np.uint8))
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (close_cells, close_cells))
+    cells = cv2.morphologyEx(cells.reshape(rows, cols), cv2.MORPH_CLOSE, kernel,
+                             borderType=cv2.BORDER_CONSTANT, borderValue=0)
     return np.kron(cells, np.ones((step, step), np.uint8))[:H, :W].astype(bool)
