@@ -62,7 +62,7 @@ def case(name, S, x, max_rounds):
     t = time.process_time()
     result = fit_perspective(x, max_rounds=max_rounds)
     row['seconds_cpu'] = time.process_time() - t
-    row['e3d_first_solve_S'] = e3d(_first_S(x), S)
+    row['e3d_first_solve_S'] = e3d(GrassmannNRSfM().fit(x).S, S)
     row['e3d_perspective'] = e3d(result.S, S)
     row['e3d_rigid'] = e3d(rigid_factorisation(x)[1], S)
     row['rounds'] = [{'index': r.index, 'trial': r.trial, 'residual': r.residual,
@@ -75,18 +75,6 @@ def case(name, S, x, max_rounds):
     return row
 
 
-_cache = {}
-
-
-def _first_S(x):
-    """The solver's own shapes on the normalised tracks (today's path with normalised
-    input)."""
-    key = id(x)
-    if key not in _cache:
-        _cache[key] = GrassmannNRSfM().fit(x).S
-    return _cache[key]
-
-
 def run(mode):
     rows = []
     F, P = mode.pick((20, 200), (40, 400), (100, 1000))
@@ -94,7 +82,7 @@ def run(mode):
     S = face_shapes(F, P)
     if S is not None:
         rows.append(case(f'rendered_face_{F}x{P}', S, camera.project(S), rounds))
-    for seed in mode.pick((1,), (0, 1), (0, 1, 2)):
+    for seed in mode.pick((1,), (1,), (0, 1, 2)):
         S = sheet_shapes('bending', F, P, seed, 5.0)
         rows.append(case(f'pinhole_bending_{F}x{P}_seed{seed}', S, camera.project(S), rounds))
     for name in ('kinect_paper10', 'tshirt10'):
