@@ -12,9 +12,10 @@ paraperspective-to-perspective iteration, 1996).
 from the reconstruction's centred depths; solve on ``x (1 + delta)``; repeat.
 
 * Depth sign. An orthographic solve cannot tell a shape from its depth mirror. On the first
-  round both signs of the first solve's depths are solved and the one whose reconstruction
-  has the lower perspective reprojection residual is kept; every later round takes, frame by
-  frame, the sign that agrees with the previous round's depths.
+  round both signs of the first solve's depths are solved and the one whose input the solver
+  fits better (:func:`fit_residual`: the true sign's ``x (1 + delta)`` is a weak-perspective
+  image, the mirror's is not) is kept; every later round takes, frame by frame, the sign
+  that agrees with the previous round's depths.
 * Perspective reprojection residual of a round (RMS, normalised units): the solver's
   reconstruction of its input ``x (1 + delta_prev)`` (its x, y plus the input's per-frame
   centroid) at the depths ``1 + delta`` it found, projected, against ``x``.
@@ -198,7 +199,7 @@ class PerspectiveNRSfM:
         for index in range(1, max_rounds + 1):
             if index == 1:
                 trials = [self._round(solver, x, s * delta, index) for s in (1.0, -1.0)]
-                trials.sort(key=lambda trial: trial[0].residual)
+                trials.sort(key=lambda trial: (trial[0].fit, trial[0].residual))
                 trials[1][0].trial = True
                 rounds.append(trials[1][0])
                 record, new, result = trials[0]
