@@ -275,8 +275,8 @@ class RecordingGrassmann:
         reports, inits, results = self.reports, self.inits, self.results
 
         class Fit(GrassmannNRSfM):
-            def fit(self, W, init=None):
-                result = super().fit(W, init=init)
+            def fit(self, W, init=None, **kwargs):
+                result = super().fit(W, init=init, **kwargs)
                 reports.append(result.report)
                 inits.append(init)
                 results.append(result)

@@ -94,19 +94,22 @@ def test_a_resumed_warm_start_runs_the_cold_schedule_and_stages():
     solver = GrassmannNRSfM()
     first = solver.fit(seq.W, init=WarmStart(R=seq.R))
     warm = WarmStart(R=first.R, S=first.S, groups=first.groups)
-    plain, resumed = solver.fit(seq.W, init=warm), solver.fit(seq.W, init=replace(warm,
-                                                                                  resumed=True))
+    cap = 10.0                          # the sliding windows' cap for a resumed solve
+    plain = solver.fit(seq.W, init=warm)
+    resumed = solver.fit(seq.W, init=replace(warm, resumed=True), beta_max=cap)
     # from given shapes: warm_beta0 and the carried depths; resumed: beta0 and the refinement
     assert 'refinement' not in plain.report.stages and 'refinement' in resumed.report.stages
-    # resumed: from beta0 until beta reaches resumed_beta_max, every ADMM solve of the fit
+    # resumed and capped: from beta0 until beta reaches the cap, every ADMM solve of the fit
     beta, schedule = solver.beta0, 1
-    while beta < solver.resumed_beta_max:
-        beta, schedule = min(beta * solver.rho, solver.resumed_beta_max), schedule + 1
+    while beta < cap:
+        beta, schedule = min(beta * solver.rho, cap), schedule + 1
     assert [n for *_, n in resumed.report.solves] == [schedule] * len(resumed.report.solves)
-    # to the same stopping rule the lower start takes more iterations (measured 84 vs 96)
-    longer = GrassmannNRSfM(resumed_beta_max=solver.beta_max).fit(
-        seq.W, init=replace(warm, resumed=True))
+    # uncapped, to the same stopping rule the lower start takes more iterations (84 vs 96)
+    longer = solver.fit(seq.W, init=replace(warm, resumed=True))
     assert plain.report.iterations < longer.report.iterations
+    assert solver.beta_max == 1e6                       # the call's cap left no trace
+    with pytest.raises(InvalidInputError, match='beta_max'):
+        solver.fit(seq.W, init=replace(warm, resumed=True), beta_max=solver.beta0 / 2)
     with pytest.raises(InvalidInputError, match='resumed'):
         solver.fit(seq.W, init=WarmStart(S=first.S, resumed=True))
 

@@ -42,17 +42,16 @@ def spatial_off_reason(params, K_s, N_s, P, groups):
             f'{POINTS_PER_GROUP * (N_s + 1)} points')
 
 
-def admm_settings(params, F, P, groups, spatial, resumed=False):
+def admm_settings(params, F, P, groups, spatial):
     """The :class:`AdmmSettings` of a solve of ``F`` frames and ``P`` tracks with the spatial
-    branch on or off; ``resumed``: the solve resumes an overlapping solution (it stops at
-    resumed_beta_max)."""
+    branch on or off."""
     K_s, K_t, N_s, N_t = sizes(params, F, P, groups)
     return AdmmSettings(
         gamma=params['gamma'] * np.sqrt(F * P), lambda1=params['lambda1'],
         lambda2=params['lambda2'], lambda3=params['lambda3'], lambda4=params['lambda4'],
         sigma_eps=params['sigma_eps'], affinity_min=params['affinity_min'],
         regroup_every=params['regroup_every'], delta=params['delta'], rho=params['rho'],
-        beta0=params['beta0'], beta_max=params['resumed_beta_max' if resumed else 'beta_max'],
+        beta0=params['beta0'], beta_max=params['beta_max'],
         warm_beta0=params['warm_beta0'],
         smoothness=params['smoothness'], spatial=spatial, temporal=params['temporal'],
         random_state=params['random_state'], max_iter=params['max_iter'], K_s=K_s, K_t=K_t,

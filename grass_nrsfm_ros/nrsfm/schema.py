@@ -184,10 +184,6 @@ SOLVER_PARAMS = (
             open_low=True),
     _number('warm_beta0', 0.01, 'Initial beta when initial shapes are given (warm start).',
             open_low=True),
-    _number('resumed_beta_max', 10.0, 'Largest penalty (>= beta0) of a solve that resumes an '
-            "overlapping window's solution (a sliding window's 'resume' warm start), and of "
-            "that warm start's windows with context that cannot resume (the second): they "
-            'stop there.', open_low=True),
     Param('random_state', 0, None, 'Seed for the k-means++ grouping and the rotation step.',
           range=(0, INT_MAX), group='solver', number=int, nullable=True),
     # research switches: no default uses them
@@ -214,7 +210,6 @@ def validate_solver(values):
     if unknown:
         raise InvalidInputError(f'unknown parameter {unknown[0]!r}')
     out = {name: SOLVER_SPECS[name].check(value) for name, value in values.items()}
-    for name in ('beta_max', 'resumed_beta_max'):
-        if out.get(name, math.inf) < out.get('beta0', 0.0):
-            raise InvalidInputError(f'{name} ({out[name]!r}) must be >= beta0')
+    if out.get('beta_max', math.inf) < out.get('beta0', 0.0):
+        raise InvalidInputError(f"beta_max ({out['beta_max']!r}) must be >= beta0")
     return out

@@ -1,6 +1,6 @@
 """The estimator: :class:`GrassmannNRSfM`, Algorithm 1 (:mod:`.admm`) in its chain of stages.
 
-``GrassmannNRSfM(**params).fit(W, init=None, progress=None) -> NRSfMResult`` with
+``GrassmannNRSfM(**params).fit(W, init=None, progress=None, beta_max=None) -> NRSfMResult`` with
 ``W: (2F, P)`` tracks; ``NRSfMResult.S: (3F, P)`` camera-frame shapes, ``R: (F, 3, 3)``,
 ``translation: (2F, 1)``, ``groups: (P,)`` spatial labels, ``report: SolverReport``.
 
@@ -68,13 +68,21 @@ class GrassmannNRSfM:
         return f'{type(self).__name__}({args})'
 
     # the chain ---------------------------------------------------------------------------------
-    def fit(self, W, init=None, progress=None):
+    def fit(self, W, init=None, progress=None, beta_max=None):
         """Reconstruct ``W: (2F, P)``. ``init``: optional :class:`WarmStart`; ``progress``:
-        optional ``callback(iteration, report)`` called after every ADMM iteration.
+        optional ``callback(iteration, report)`` called after every ADMM iteration;
+        ``beta_max``: this call's cap on the penalty (None: the ``beta_max`` parameter), for
+        every ADMM solve of the fit. The caller owns the schedule of a window: a sliding
+        window that resumes an overlapping solution (``init.resumed``), or cannot resume the
+        one before it, passes its cap here (10, docs/decisions/0408, 0425); ``init.resumed``
+        alone starts the penalty at beta0 but does not cap it.
 
         The chain: rotations -> rotation check -> shape pass (thinning -> ADMM -> refinement
         -> fill) -> registration (the shape pass again with registered rotations)."""
-        params = validate_solver(self.get_params())
+        values = self.get_params()
+        if beta_max is not None:
+            values['beta_max'] = beta_max
+        params = validate_solver(values)
         with one_blas_thread():
             start, timer = time.perf_counter(), Timer()
             problem = Problem.from_tracks(W, init)
@@ -164,8 +172,7 @@ def admm_solve(problem, R, params, spatial, report, timer, progress, reason):
     ``report.solves``; returns ``(S_cam: (3F, P) in W's units, the spent AdmmState)``."""
     t = time.perf_counter()
     F, P = R.shape[0], problem.Wn.shape[1]
-    settings = config.admm_settings(params, F, P, problem.groups, spatial,
-                                    resumed=problem.init.resumed)
+    settings = config.admm_settings(params, F, P, problem.groups, spatial)
     state = AdmmState(problem.Wn, R, initial_shapes(problem, R), settings, problem.groups,
                       warm=problem.warm, beta=settings.beta0 if problem.init.resumed else None,
                       smooth=smoothed(problem, params))
