@@ -10,11 +10,12 @@ factorisation for comparison).
 Ground truth: the data holds none for the 191 frames; ``perspective_subsets/kinect_paper.npz``
 has 90 points in 10 frames of the same pixel frame (Kinect depth, mm) whose frame numbers are
 not known. They are located here: every image frame is tried as the subset's first frame, each
-truth point is tied to its nearest complete track there (within ``--tie-px``) and carried by
-it into every frame; each subset frame is the image frame where the carried points land
-nearest (median pixel distance). The e3D (per-frame Procrustes with scale) of the tied
-tracks' reconstruction against the truth is reported with that distance, so a poor match
-shows, beside rigid factorisation's and the solver's on the subset's own 10 x 90 tracks.
+truth point whose nearest complete track there is within ``--tie-px`` becomes an affine
+combination of its 4 nearest tracks and is carried by them into every frame; each subset
+frame is the image frame where the carried points land nearest (median pixel distance). The
+e3D (per-frame Procrustes with scale) of the same combination of the tracks' reconstructed
+points against the truth is reported with that distance, so a poor match shows, beside
+rigid factorisation's and the solver's on the subset's own 10 x 90 tracks.
 
 Writes ``bench/results/kinect_paper.json`` and, unless ``--no-pictures``,
 ``docs/pictures/kinect_paper_tracking.png`` (alive tracks, births and failed checks per frame)
@@ -31,6 +32,7 @@ import time
 
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.tri import Triangulation
 import numpy as np
 from PIL import Image
 
@@ -62,16 +64,18 @@ def parse_args(argv=None):
     parser.add_argument('--out', default=str(RESULTS / 'kinect_paper.json'))
     parser.add_argument('--pictures', default=str(PICTURES))
     parser.add_argument('--no-pictures', action='store_true')
+    parser.add_argument('--cache', help='an .npz of the tracks and reconstruction: read where '
+                        'it exists (pictures and figures only), else written')
     return parser.parse_args(argv)
 
 
 # ------------------------------------------------------------------------------ tracking
 def track(folder, K, step, frames=None, **options):
     """Track the window over the folder's frames: ``(W: (2F, P) px, ids, stamps,
-    counts: {name: (F,) int}, seconds per frame, first RGB image list)``."""
+    counts: {name: (F,) int}, seconds per frame)``."""
     source = open_source(folder)
     tracker = DenseTracker(step, WINDOW, K=K, **options)
-    ids, uv, stamps, counts, images = [], [], [], [], []
+    ids, uv, stamps, counts = [], [], [], []
     seconds = 0.0
     for frame in source:
         if frames is not None and len(stamps) >= frames:
@@ -83,10 +87,9 @@ def track(folder, K, step, frames=None, **options):
         uv.append(out.uv)
         stamps.append(frame.stamp_ns)
         counts.append(out.counts)
-        images.append(frame.image)
     W, track_ids = tracks_matrix(ids, uv)
     per_frame = {k: np.array([c[k] for c in counts]) for k in counts[0]}
-    return W, track_ids, np.array(stamps), per_frame, seconds / len(stamps), images
+    return W, track_ids, np.array(stamps), per_frame, seconds / len(stamps)
 
 
 def normalised(W, K):
@@ -100,23 +103,27 @@ def normalised(W, K):
 
 
 # ------------------------------------------------------------------------------ ground truth
-def locate_subset(W_px, W_gt_px, tie_px):
+def locate_subset(W_px, W_gt_px, tie_px, neighbours=4):
     """Where the truth subset sits in the sequence. ``W_px: (2F, P)`` complete tracks,
-    ``W_gt_px: (2G, N)`` truth pixels. Returns ``dict(frames: (G,), tracks: (N,) column of
-    W_px or -1, residual_px: (G,) median distance of the carried points, tied: (N,) bool)``
-    for the first-frame candidate with the smallest median residual."""
+    ``W_gt_px: (2G, N)`` truth pixels. Each truth point is an affine combination of its
+    ``neighbours`` nearest tracks in the candidate first frame (weights summing to 1, least
+    norm), carried by them through the frames. Returns, for the first-frame candidate with
+    the smallest median residual, ``dict(frames: (G,), residual_px: (G,) median distance of
+    the carried points, tied: (N,) bool (nearest track within tie_px), tracks: (N, k)
+    columns of W_px, weights: (N, k))``."""
     F, G = W_px.shape[0] // 2, W_gt_px.shape[0] // 2
     tracks_uv = np.stack([W_px[0::2], W_px[1::2]], axis=-1)          # (F, P, 2)
     truth_uv = np.stack([W_gt_px[0::2], W_gt_px[1::2]], axis=-1)     # (G, N, 2)
     best = None
     for a in range(F):
         d = np.linalg.norm(tracks_uv[a][None] - truth_uv[0][:, None], axis=-1)   # (N, P)
-        nearest = d.argmin(axis=1)
-        tied = d[np.arange(len(nearest)), nearest] <= tie_px
+        near = np.argsort(d, axis=1)[:, :neighbours]                            # (N, k)
+        tied = d[np.arange(len(near)), near[:, 0]] <= tie_px
         if tied.sum() < 10:
             continue
-        offset = truth_uv[0, tied] - tracks_uv[a, nearest[tied]]                # (n, 2)
-        carried = tracks_uv[:, nearest[tied]] + offset[None]                    # (F, n, 2)
+        near = near[tied]
+        weights = affine_weights(tracks_uv[a, near], truth_uv[0, tied])         # (n, k)
+        carried = np.einsum('fnkc,nk->fnc', tracks_uv[:, near], weights)       # (F, n, 2)
         miss = np.median(np.linalg.norm(carried[None] - truth_uv[:, tied][:, None], axis=-1),
                          axis=-1)                                               # (G, F)
         frames = miss.argmin(axis=1)
@@ -124,16 +131,27 @@ def locate_subset(W_px, W_gt_px, tie_px):
         score = float(np.median(residual))
         if best is None or score < best['score']:
             best = dict(score=score, frames=frames, residual_px=residual, tied=tied,
-                        tracks=np.where(tied, nearest, -1))
+                        tracks=near, weights=weights)
     return best
 
 
+def affine_weights(corners, points):
+    """Least-norm weights ``(n, k)`` summing to 1 with ``sum_k w corners[:, k] = points``
+    (``corners: (n, k, 2)``, ``points: (n, 2)``)."""
+    A = np.concatenate([corners.transpose(0, 2, 1), np.ones((len(points), 1,
+                                                             corners.shape[1]))], axis=1)
+    b = np.concatenate([points, np.ones((len(points), 1))], axis=1)            # (n, 3)
+    return np.einsum('nkr,nr->nk', np.linalg.pinv(A), b)
+
+
 def subset_e3d(S_est, match, S_gt):
-    """e3D (per frame Procrustes with scale) of the tied tracks' shapes in the located frames
-    against the truth ``S_gt: (3G, N)``."""
-    cols = match['tracks'][match['tied']]
+    """e3D (per frame Procrustes with scale) of the truth points' reconstruction (the same
+    affine combination of their tracks' shapes) in the located frames against the truth
+    ``S_gt: (3G, N)``."""
     rows = (3 * match['frames'][:, None] + np.arange(3)).ravel()
-    return e3d(S_est[rows][:, cols], S_gt[:, match['tied']], scale=True)
+    shapes = S_est[rows][:, match['tracks']]                                   # (3G, n, k)
+    estimate = np.einsum('rnk,nk->rn', shapes, match['weights'])
+    return e3d(estimate, S_gt[:, match['tied']], scale=True)
 
 
 # ------------------------------------------------------------------------------ pictures
@@ -161,9 +179,9 @@ def tracking_figure(counts, complete_alive, path):
     save_small(fig, path)
 
 
-def fig1(images, W_px, S_est, shown, path):
-    """The paper's Fig. 1: input frames (window and tracks) above the reconstructed surface
-    as a depth-coloured point cloud."""
+def fig1(images, W_px, S_est, shown, step, path):
+    """The paper's Fig. 1: input frames (window and tracks) above the reconstructed surface,
+    triangulated over the tracks and coloured by depth."""
     fig = Figure(figsize=(2.6 * len(shown), 4.6), dpi=DPI)
     FigureCanvasAgg(fig)
     x0, y0, x1, y1 = WINDOW
@@ -175,21 +193,33 @@ def fig1(images, W_px, S_est, shown, path):
         ax.set_title(f'input frame {f + 1}', fontsize=9)
         ax.axis('off')
         ax3 = fig.add_subplot(2, len(shown), len(shown) + k + 1, projection='3d')
-        xyz = S_est[3 * f:3 * f + 3]
-        xyz = xyz - xyz.mean(axis=1, keepdims=True)
-        # camera frame (x right, y down, z away) drawn with z up the page's depth axis
-        ax3.scatter(xyz[0], xyz[2], -xyz[1], c=xyz[2], cmap='viridis', s=1.5, linewidths=0)
-        half = np.abs(xyz).max()
-        for setter in (ax3.set_xlim, ax3.set_ylim, ax3.set_zlim):
-            setter(-half, half)
-        ax3.view_init(elev=25, azim=-60)
-        ax3.set_xticks([])
-        ax3.set_yticks([])
-        ax3.set_zticks([])
+        surface(ax3, W_px[2 * f:2 * f + 2], S_est[3 * f:3 * f + 3], step)
         ax3.set_title(f'reconstruction, frame {f + 1}', fontsize=9)
     fig.subplots_adjust(left=0.01, right=0.99, top=0.95, bottom=0.01, wspace=0.02,
                         hspace=0.08)
     save_small(fig, path)
+
+
+def surface(ax, uv, xyz, step):
+    """Draw the shape ``xyz: (3, P)`` as a surface triangulated over its tracks' pixels
+    ``uv: (2, P)`` (triangles with an edge over 3 grid steps dropped), seen from the camera's
+    upper left, each triangle coloured by its depth."""
+    tri = Triangulation(uv[0], uv[1])
+    corners = uv.T[tri.triangles]                                        # (T, 3, 2)
+    edges = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=-1).max(axis=1)
+    triangles = tri.triangles[edges <= 3 * step]
+    xyz = xyz - xyz.mean(axis=1, keepdims=True)
+    mesh = ax.plot_trisurf(xyz[0], xyz[2], -xyz[1], triangles=triangles, linewidth=0,
+                           antialiased=False, shade=False)
+    mesh.set_array(xyz[2][triangles].mean(axis=1))
+    mesh.set_cmap('viridis')
+    mesh.autoscale()
+    half = np.abs(xyz[:2]).max()
+    for setter in (ax.set_xlim, ax.set_ylim, ax.set_zlim):
+        setter(-half, half)
+    ax.set_box_aspect((1, 1, 1), zoom=1.25)
+    ax.view_init(elev=20, azim=-60)
+    ax.set_axis_off()
 
 
 def save_small(fig, path):
@@ -206,6 +236,39 @@ def _rectangle(x, y, w, h):
 
 
 # ------------------------------------------------------------------------------ main
+def measure(args, frames_folder, K):
+    """Track and reconstruct (or load both from ``args.cache`` where it exists; write it
+    otherwise): a dict of W (2F, P) px, ids, stamps, counts, ms_per_frame, S, S_rigid,
+    solve_seconds, iterations."""
+    cache = Path(args.cache) if args.cache else None
+    if cache is not None and cache.is_file():
+        log(f'tracks and reconstruction from {cache}')
+        with np.load(cache) as npz:
+            run = {k: npz[k] for k in npz.files}
+        run['counts'] = {k[6:]: run.pop(k) for k in list(run) if k.startswith('count_')}
+        return run
+    log(f'tracking {frames_folder} (step {args.step}, {args.method}) ...')
+    W, ids, stamps, counts, frame_seconds = track(
+        frames_folder, K, args.step, args.frames, method=args.method,
+        min_zncc=args.min_zncc, reanchor_zncc=args.reanchor_zncc)
+    complete = np.isfinite(W).all(axis=0)
+    log(f'{W.shape[0] // 2} frames, {ids.size} tracks, {int(np.isfinite(W[0]).sum())} in '
+        f'frame 1, {int(complete.sum())} in every frame; {1000 * frame_seconds:.0f} ms per '
+        'frame')
+    Wn = normalised(W[:, complete], K)
+    started = time.perf_counter()
+    result = GrassmannNRSfM().fit(Wn)
+    solve_seconds = time.perf_counter() - started
+    _, S_rigid = rigid_factorisation(Wn)
+    log(f'GrassmannNRSfM: {int(complete.sum())} complete tracks in {solve_seconds:.0f} s')
+    run = dict(W=W, ids=ids, stamps=stamps, ms_per_frame=1000 * frame_seconds, S=result.S,
+               S_rigid=S_rigid, solve_seconds=solve_seconds,
+               iterations=result.report.iterations)
+    if cache is not None:
+        np.savez_compressed(cache, **run, **{f'count_{k}': v for k, v in counts.items()})
+    return {**run, 'counts': counts}
+
+
 def main(argv=None):
     args = parse_args(argv)
     root = data_root()
@@ -214,33 +277,23 @@ def main(argv=None):
         log('kinect_paper_images not found (set GRASS_NRSFM_DATA): nothing measured')
         return 1
     K = np.array(json.loads((folder / 'meta.json').read_text())['K'], dtype=np.float64)
-    log(f'tracking {folder / "frames"} (step {args.step}, {args.method}) ...')
-    W, ids, stamps, counts, frame_seconds, images = track(
-        folder / 'frames', K, args.step, args.frames, method=args.method,
-        min_zncc=args.min_zncc, reanchor_zncc=args.reanchor_zncc)
+    run = measure(args, folder / 'frames', K)
+    W, ids, counts = run['W'], run['ids'], run['counts']
     F = W.shape[0] // 2
     complete = np.isfinite(W).all(axis=0)
     first = np.isfinite(W[0])
-    complete_alive = np.isfinite(W[0::2][:, first]).sum(axis=1)
     W_px = W[:, complete]
-    log(f'{F} frames, {ids.size} tracks, {int(first.sum())} in frame 1, {W_px.shape[1]} in '
-        f'every frame; {1000 * frame_seconds:.0f} ms per frame')
-    Wn = normalised(W_px, K)
-    started = time.perf_counter()
-    result = GrassmannNRSfM().fit(Wn)
-    solve_seconds = time.perf_counter() - started
-    _, S_rigid = rigid_factorisation(Wn)
-    log(f'GrassmannNRSfM: {W_px.shape[1]} complete tracks x {F} frames in {solve_seconds:.0f} s')
     figures = dict(
         frames=F, step=args.step, window=WINDOW, tracker=dict(
             method=args.method, min_zncc=args.min_zncc, reanchor_zncc=args.reanchor_zncc),
         K=K, tracks_total=ids.size, tracks_frame1=int(first.sum()),
-        tracks_complete=int(complete.sum()), ms_per_frame=1000 * frame_seconds,
+        tracks_complete=int(complete.sum()), ms_per_frame=float(run['ms_per_frame']),
         alive_mean=float(counts['alive'].mean()), failed_total=int(counts['failed'].sum()),
         born_total=int(counts['born'].sum()), reanchored=int(counts['reanchored'].sum()),
-        solve_seconds=solve_seconds, iterations=result.report.iterations,
+        solve_seconds=float(run['solve_seconds']), iterations=int(run['iterations']),
         coordinates='normalised K^-1 [u v 1] (the solver has no K support yet)')
-    figures['ground_truth'] = ground_truth_figures(W_px, result.S, S_rigid, K, args.tie_px)
+    figures['ground_truth'] = ground_truth_figures(W_px, run['S'], run['S_rigid'], K,
+                                                   args.tie_px)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(jsonable({'suite': 'kinect_paper', 'environment': environment(),
@@ -249,9 +302,12 @@ def main(argv=None):
     if not args.no_pictures:
         pictures = Path(args.pictures)
         pictures.mkdir(parents=True, exist_ok=True)
+        complete_alive = np.isfinite(W[0::2][:, first]).sum(axis=1)
         tracking_figure(counts, complete_alive, pictures / 'kinect_paper_tracking.png')
-        shown = sorted({0, F - 1} | {int(np.argmax(_bend(result.S)))})
-        fig1(images, W_px, result.S, shown, pictures / 'kinect_paper_fig1.png')
+        shown = sorted({0, F - 1} | {int(np.argmax(_bend(run['S'])))})
+        images = {frame.index: frame.image for frame in open_source(folder / 'frames')
+                  if frame.index in shown}
+        fig1(images, W_px, run['S'], shown, args.step, pictures / 'kinect_paper_fig1.png')
         log(f'wrote {pictures}/kinect_paper_tracking.png, kinect_paper_fig1.png')
     print(json.dumps(jsonable({k: v for k, v in figures.items() if k != 'K'}), indent=1))
     return 0

@@ -248,3 +248,78 @@ def test_unreadable_input_is_one_line_and_exit_code_2(tmp_path, capsys, frames, 
     assert code == 2
     assert len(err) == 1 and err[0].startswith('grass-nrsfm track: error: '), err
     assert not (tmp_path / 'out.npz').exists()
+
+
+def test_tracker_checks_reach_the_tracker_and_the_meta(tmp_path, capsys, frames):
+    folder = write_folder(tmp_path / 'frames', frames[:4])
+    out = tmp_path / 'tracks.npz'
+    code, _, _ = track(capsys, folder, '-o', out, '--roi', 30, 20, 130, 100, '--method',
+                       'dis-medium', '--min-zncc', 0.6, '--reanchor-zncc', 0.75)
+    assert code == 0
+    npz = load(out)
+    meta = json.loads(str(npz['meta']))
+    assert meta['method'] == 'dis-medium'
+    assert meta['checks'] == {'min_zncc': 0.6, 'reanchor_zncc': 0.75, 'fb_max_px': None}
+    W_ref, _ = reference_tracks(frames[:4], step=4, region=(30, 20, 130, 100),
+                                method='dis-medium', min_zncc=0.6, reanchor_zncc=0.75)
+    np.testing.assert_array_equal(npz['W'], W_ref)
+    code, _, err = track(capsys, folder, '-o', out, '--min-zncc', 2)
+    assert code == 2 and len(err) == 1 and 'min_zncc' in err[0]
+
+
+class FakeTerminal:
+    def __init__(self):
+        self.text = ''
+
+    def isatty(self):
+        return True
+
+    def write(self, text):
+        self.text += text
+
+    def flush(self):
+        pass
+
+
+def test_progress_is_a_bar_on_a_terminal_and_lines_elsewhere():
+    from io import StringIO
+
+    from grass_nrsfm_ros.commands.track import Progress
+
+    terminal = FakeTerminal()
+    bar = Progress(4, stream=terminal, width=8)
+    for done in range(1, 5):
+        bar.update(done, 100)
+    bar.close()
+    assert terminal.text.startswith('\r[##      ] 1/4 frames, 100 tracks alive')
+    assert '[########] 4/4 frames' in terminal.text and terminal.text.endswith('\n')
+    assert terminal.text.count('\n') == 1                   # redrawn in place
+    lines = StringIO()
+    counter = Progress(20, stream=lines)
+    for done in range(1, 21):
+        counter.update(done, 7)
+    assert lines.getvalue().splitlines()[0].startswith('track: 2/20 frames, 7 tracks alive')
+    assert len(lines.getvalue().splitlines()) == 10
+
+
+def test_the_kinect_paper_bench_locates_a_subset_of_known_frames():
+    """bench.kinect_paper's search for the truth subset: points between the tracks, 4 of 30
+    frames of a turning sheet, 0.5 px noise; it finds the frames and ties the points to their
+    nearest tracks."""
+    from bench.kinect_paper import locate_subset
+
+    scene = scenes.sheet_scene('waving', n_frames=30, size=(120, 160), focal=155.0,
+                               extent_px=110, grid=(24, 18), yaw=30.0, seed=5)
+    grid = np.stack(np.meshgrid(np.arange(40, 121, 4.0), np.arange(30, 91, 4.0)), -1)
+    truth = scene.truth(grid.reshape(-1, 2))
+    keep = truth.visible.all(axis=0)
+    uv = truth.uv[:, keep]                                         # (F, P, 2) perfect tracks
+    W_px = uv.transpose(0, 2, 1).reshape(-1, uv.shape[1])
+    rng = np.random.default_rng(0)
+    between = grid.reshape(-1, 2)[keep][::7] + 1.3                 # off the tracks by 1.8 px
+    subset = scene.truth(between)
+    frames = np.array([3, 11, 17, 26])
+    gt = subset.uv[frames] + rng.normal(0, 0.5, (4, len(between), 2))
+    match = locate_subset(W_px, gt.transpose(0, 2, 1).reshape(8, -1), tie_px=3.0)
+    np.testing.assert_array_equal(match['frames'], frames)
+    assert match['tied'].mean() > 0.8 and np.max(match['residual_px']) < 1.5

@@ -54,6 +54,12 @@ def add_arguments(parser):
                         help='a camera_info YAML file as ROS camera_calibration writes it')
     parser.add_argument('--method', choices=METHODS, default=DEFAULT_METHOD,
                         help=f'optical flow method ({DEFAULT_METHOD})')
+    parser.add_argument('--min-zncc', type=float, default=None,
+                        help='photometric check: a track whose patch correlates less with its '
+                        "reference dies (the tracker's default)")
+    parser.add_argument('--reanchor-zncc', type=float, default=None,
+                        help='a new reference frame when the median correlation falls below '
+                        "this (the tracker's default)")
     parser.add_argument('--fb-max-px', type=float, default=None,
                         help='forward-backward check: a track whose round trip misses by more '
                         'pixels dies (default: no such check, only the photometric one)')
@@ -83,8 +89,10 @@ def run(args):
     camera, camera_from = chosen_camera(args, source)
     mask = read_mask(args.mask) if args.mask else None
     region = mask if mask is not None else (tuple(args.roi) if args.roi else None)
+    checks = {name: getattr(args, name) for name in ('min_zncc', 'reanchor_zncc')
+              if getattr(args, name) is not None}
     tracker = DenseTracker(args.step, region, args.method, K=None if camera is None
-                           else camera.K, fb_max_px=args.fb_max_px)
+                           else camera.K, fb_max_px=args.fb_max_px, **checks)
     out = Path(args.output)
     sink = NpzSink(out) if out.suffix == '.npz' else BagSink(out, camera, args.frame_id)
     total = source.count if args.max_frames is None else min(
@@ -105,7 +113,10 @@ def run(args):
         sink.abort()
         raise UserError(f'{args.input}: no readable frame')
     meta = dict(input=str(args.input), kind=source.kind, frames=n, step=args.step,
-                method=args.method, region=region_text(args), stamps_from=source.stamps_from,
+                method=args.method, checks=dict(min_zncc=tracker.min_zncc,
+                                                reanchor_zncc=tracker.reanchor_zncc,
+                                                fb_max_px=tracker.fb_max_px),
+                region=region_text(args), stamps_from=source.stamps_from,
                 camera_from=camera_from, skipped_frames=source.skipped)
     summary = sink.close(camera, meta, complete=args.complete)
     print(f'{out}: {n} frames, {summary}; {1000 * seconds / n:.0f} ms per frame; stamps from '
