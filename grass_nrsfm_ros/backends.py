@@ -273,6 +273,7 @@ class ProcessBackend:
         self._on_exit = on_exit or (lambda code, restarted: None)
         self._ctx = multiprocessing.get_context(START_METHOD)
         self._lock = threading.Lock()
+        self._queue_lock = threading.Lock()
         self._updates = deque()
         self._closing = False
         self.outstanding = 0            # windows submitted, not yet answered
@@ -323,8 +324,9 @@ class ProcessBackend:
         self._put(('reset',))
 
     def _put(self, message):
-        if not self._closing and self.process is not None:
-            self._inbox.put(message)
+        with self._queue_lock:           # not while a restart swaps the queue
+            if not self._closing and self.process is not None:
+                self._inbox.put(message)
 
     # -- receiver thread ------------------------------------------------------------------------
     def _receive_loop(self, conn):
@@ -364,15 +366,15 @@ class ProcessBackend:
             self.outstanding = 0
             self.restarts += 1
             give_up = self.restarts > self.max_restarts
-        self._inbox.cancel_join_thread()
-        self._inbox.close()
-        if give_up:
-            self.process = None
-            self._on_exit(exitcode, False)
-            return
-        self.pid = None
-        self._on_exit(exitcode, True)
-        self._start()
+        with self._queue_lock:
+            self._inbox.cancel_join_thread()
+            self._inbox.close()
+            if give_up:
+                self.process = None
+            else:
+                self.pid = None
+                self._start()
+        self._on_exit(exitcode, not give_up)
 
     # -- shutdown -------------------------------------------------------------------------------
     def close(self, grace=STOP_GRACE_S):

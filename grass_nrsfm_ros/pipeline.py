@@ -141,16 +141,35 @@ def make_pipeline(config, solver_factory=None, *, mapping='inline', notify=None,
                         metres_per_pixel=config['metres_per_pixel'])
 
 
-def reconstruct_live(pipeline, stamps, frames, frame_id=''):
-    """The offline driver: run ``pipeline`` (inline) over a whole sequence, each window solved
-    as it closes; returns ``(points, refined, updates)``: FrameResults in stamp order and the
-    mapping's Updates. ``frames``: iterable of ``(ids: (P,), uv: (P, 2))``, one per stamp."""
-    points, refined, updates = [], [], []
-    for stamp, (ids, uv) in zip(stamps, frames):
-        points += pipeline.add_frame(stamp, ids, uv, frame_id)
-        solved, taken = pipeline.refined()
-        refined += solved
-        updates += taken
+def live_events(pipeline, frames, refuse=()):
+    """The offline driver: run ``pipeline`` (inline) over ``frames``, an iterable of
+    ``(stamp_ns, ids: (P,), uv: (P, 2), frame_id)``, each window solved as it closes, then the
+    last one. Yields ``(kind, item)`` as they happen: ('points', FrameResult), ('refined',
+    FrameResult), ('update', Update) and, for a frame raising one of ``refuse`` (others
+    propagate), ('refused', (stamp_ns, exception))."""
+    for stamp, ids, uv, frame_id in frames:
+        try:
+            points = pipeline.add_frame(stamp, ids, uv, frame_id)
+        except refuse as exc:
+            yield 'refused', (stamp, exc)
+        else:
+            yield from (('points', r) for r in points)
+        yield from _taken(pipeline)
     pipeline.flush()
-    solved, taken = pipeline.refined()
-    return points, refined + solved, updates + taken
+    yield from _taken(pipeline)
+
+
+def _taken(pipeline):
+    refined, updates = pipeline.refined()
+    yield from (('update', u) for u in updates)
+    yield from (('refined', r) for r in refined)
+
+
+def reconstruct_live(pipeline, stamps, frames, frame_id=''):
+    """:func:`live_events` collected: ``(points, refined, updates)`` in stamp order, for
+    ``frames``, an iterable of ``(ids: (P,), uv: (P, 2))``, one per stamp."""
+    out = {'points': [], 'refined': [], 'update': []}
+    for kind, item in live_events(pipeline, ((stamp, ids, uv, frame_id)
+                                             for stamp, (ids, uv) in zip(stamps, frames))):
+        out[kind].append(item)
+    return out['points'], out['refined'], out['update']

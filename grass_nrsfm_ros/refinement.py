@@ -17,6 +17,9 @@ from dataclasses import replace
 
 from grass_nrsfm_ros.mapper import DEPTH_FLIP
 
+#: frames of closed windows waiting at most (a mapping that never answers cannot grow it)
+UNPUBLISHED_KEPT = 1_000_000
+
 
 class Refinement:
     """See the module docstring. ``expect(window)`` for each closed window (in order),
@@ -26,7 +29,7 @@ class Refinement:
     def __init__(self, refined_after=1):
         self.refined_after = int(refined_after)
         self._latest = (None, {})       # (sequence, {stamp: (FrameResult, solves)}) waiting
-        self._unpublished = deque()     # (sequence, stamp) of closed windows, not published
+        self._unpublished = deque(maxlen=UNPUBLISHED_KEPT)   # (sequence, stamp) not published
         self._published_until = {}      # sequence -> newest published stamp
         self.stats = dict(solved=0, failed=0, published=0, frames_lost=0)
 

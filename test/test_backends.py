@@ -217,7 +217,7 @@ def test_every_frame_on_points_windows_refined_reset_and_clean_exit(ros_env, tmp
         assert client.wait_for_service(timeout_sec=10)
         future = client.call_async(Trigger.Request())
         assert feeder.wait_for(future.done, 10)
-        assert 'windows in the mapping process' in future.result().message
+        assert 'windows in the mapping' in future.result().message
         rosutil.publish(feeder, frames(W[:60], ids, first=60))
         assert feeder.wait_for(lambda: len(feeder.refined) >= 90, 30), log.read_text()
         assert sorted(stamp_of(m) for m in feeder.refined)[60:] == \
@@ -244,7 +244,7 @@ def test_a_failing_window_is_reported_and_nothing_else_is_lost(ros_env, tmp_path
         values = feeder.diagnostic_values()
         assert values['windows not solved'] == '1' and values['windows solved'] == '3', values
     text = log.read_text()
-    assert 'window 1 failed in the mapping process: RuntimeError: second window refused' \
+    assert 'window 1 failed: RuntimeError: second window refused' \
         in text, text
     # window 2 (frames 20-49) refines the frames window 1 would have: none is missing
     assert sorted(stamp_of(m) for m in feeder.refined) == [stamp_ns(f) for f in range(60)]

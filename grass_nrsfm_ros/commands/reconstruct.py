@@ -27,7 +27,7 @@ from grass_nrsfm_ros.commands.npz import complete_tracks, load_tracks
 from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM
 from grass_nrsfm_ros.nrsfm.measurement import validate_shapes
 from grass_nrsfm_ros.params import load_config, solver_kwargs
-from grass_nrsfm_ros.pipeline import make_pipeline
+from grass_nrsfm_ros.pipeline import live_events, make_pipeline
 
 
 def add_arguments(parser):
@@ -182,47 +182,47 @@ def reconstruct_bag(in_path, out_path, pipeline, *, topic=bag.TRACKS_TOPIC,
             for c in conns:
                 out.add_topic(c.topic, c.msgtype, definition=bag.definition_of(c))
 
-        def write(results, name):
-            for r in results:
-                out.write_points(np.asarray(r.xyz), np.asarray(r.ids), r.stamp_ns, r.frame_id,
-                                 topic=name, t_ns=received.get(r.stamp_ns, r.stamp_ns))
+        def frames():
+            """The bag's tracks frames, inputs copied on the way; undecodable ones refused."""
+            for conn, t_ns, raw in src.messages(conns):
+                if copy_inputs and not src.is_ros1:
+                    out.write(conn.topic, raw, t_ns)
+                    report.copied[conn.topic] += 1
+                if conn.topic != topic:
+                    continue
+                msg = src.decode(raw, conn)
+                stamp = bag.stamp_ns(msg.header.stamp)
+                if copy_inputs and src.is_ros1:
+                    out.add_topic(topic, bag.POINTCLOUD2)
+                    out.write(topic, bag.cloud_cdr(bag.tracks_fields(msg), stamp,
+                                                   msg.header.frame_id), t_ns)
+                    report.copied[topic] += 1
+                report.frames_in += 1
+                try:
+                    tracks = decode_tracks(msg)
+                except CloudError as exc:
+                    report.refused.append(f'frame {report.frames_in - 1} (stamp {stamp}): {exc}')
+                else:
+                    received.setdefault(stamp, t_ns)
+                    yield stamp, tracks.ids, tracks.uv, msg.header.frame_id
+                if progress is not None:
+                    progress(report.frames_in, total)
 
-        def take_refined():
-            results, updates = pipeline.refined()
-            write(results, refined_topic)
-            report.frames_refined += len(results)
-            report.windows += len(updates)
-            report.refused += [f'window {u.index}: {u.message}' for u in updates
-                               if u.kind == 'failed']
-
-        for conn, t_ns, raw in src.messages(conns):
-            is_tracks = conn.topic == topic
-            if copy_inputs and not src.is_ros1:
-                out.write(conn.topic, raw, t_ns)
-                report.copied[conn.topic] += 1
-            if not is_tracks:
-                continue
-            msg = src.decode(raw, conn)
-            stamp = bag.stamp_ns(msg.header.stamp)
-            if copy_inputs and src.is_ros1:
-                out.add_topic(topic, bag.POINTCLOUD2)
-                out.write(topic, bag.cloud_cdr(bag.tracks_fields(msg), stamp, msg.header.frame_id),
-                          t_ns)
-                report.copied[topic] += 1
-            report.frames_in += 1
-            try:
-                tracks = decode_tracks(msg)
-                received.setdefault(stamp, t_ns)
-                points = pipeline.add_frame(stamp, tracks.ids, tracks.uv, msg.header.frame_id)
-                write(points, points_topic)
-                report.frames_out += len(points)
-            except (CloudError, *skip_errors) as exc:
+        for kind, item in live_events(pipeline, frames(), refuse=skip_errors):
+            if kind in ('points', 'refined'):
+                out.write_points(np.asarray(item.xyz), np.asarray(item.ids), item.stamp_ns,
+                                 item.frame_id, topic=points_topic if kind == 'points'
+                                 else refined_topic, t_ns=received.get(item.stamp_ns,
+                                                                       item.stamp_ns))
+                report.frames_out += kind == 'points'
+                report.frames_refined += kind == 'refined'
+            elif kind == 'update':
+                report.windows += 1
+                if item.kind == 'failed':
+                    report.refused.append(f'window {item.index}: {item.message}')
+            else:
+                stamp, exc = item
                 report.refused.append(f'frame {report.frames_in - 1} (stamp {stamp}): {exc}')
-            take_refined()
-            if progress is not None:
-                progress(report.frames_in, total)
-        pipeline.flush()
-        take_refined()
     report.seconds = time.perf_counter() - t_wall
     report.cpu_seconds = time.process_time() - t_cpu
     return report
