@@ -227,7 +227,7 @@ def test_camera_info_yaml(tmp_path, capsys, frames):
 
 @pytest.mark.parametrize('make', ['missing', 'empty folder', 'not a video', 'bag without images',
                                   'bad camera yaml'])
-def test_unreadable_input_is_one_line_and_exit_code_2(tmp_path, capsys, frames, make):
+def test_unreadable_input_is_one_line_and_exit_code_2(tmp_path, capfd, frames, make):
     extra = []
     if make == 'missing':
         path = tmp_path / 'nowhere'
@@ -244,7 +244,7 @@ def test_unreadable_input_is_one_line_and_exit_code_2(tmp_path, capsys, frames, 
         path = write_folder(tmp_path / 'frames', frames[:2])
         (tmp_path / 'cam.yaml').write_text('camera_matrix: {rows: 3, cols: 3, data: [1, 2]}\n')
         extra = ['--camera-info', tmp_path / 'cam.yaml']
-    code, stdout, err = track(capsys, path, '-o', tmp_path / 'out.npz', *extra)
+    code, stdout, err = track(capfd, path, '-o', tmp_path / 'out.npz', *extra)   # OpenCV too
     assert code == 2
     assert len(err) == 1 and err[0].startswith('grass-nrsfm track: error: '), err
     assert not (tmp_path / 'out.npz').exists()
@@ -323,3 +323,29 @@ def test_the_kinect_paper_bench_locates_a_subset_of_known_frames():
     match = locate_subset(W_px, gt.transpose(0, 2, 1).reshape(8, -1), tie_px=3.0)
     np.testing.assert_array_equal(match['frames'], frames)
     assert match['tied'].mean() > 0.8 and np.max(match['residual_px']) < 1.5
+
+
+def test_an_unreadable_frame_is_skipped_with_one_warning(tmp_path, capfd, frames):
+    folder = write_folder(tmp_path / 'frames', frames[:5])
+    (folder / '002.png').write_bytes(b'\x89PNG broken')
+    (folder / '003.png').write_bytes(b'')
+    out = tmp_path / 'tracks.npz'
+    code, stdout, err = track(capfd, folder, '-o', out, '--quiet')
+    assert code == 0
+    warnings_ = [line for line in err if 'warning' in line]
+    assert len(err) == len(warnings_) == 1 and '002.png skipped' in err[0], err
+    npz = load(out)
+    np.testing.assert_array_equal(npz['stamps'], np.round(np.array([0, 1, 4]) * 1e9 / 30))
+    assert npz['W'].shape[0] == 6 and '2 unreadable frames skipped' in stdout
+
+
+def test_a_size_change_restarts_the_tracks_with_new_ids(tmp_path, capfd, frames):
+    smaller = [cv2.resize(rgb, (128, 96), interpolation=cv2.INTER_AREA) for rgb in frames[3:6]]
+    folder = write_folder(tmp_path / 'frames', list(frames[:3]) + smaller)
+    out = tmp_path / 'tracks.npz'
+    code, _, err = track(capfd, folder, '-o', out, '--quiet')
+    assert code == 0
+    assert len(err) == 1 and 'frame 3' in err[0] and 'restart' in err[0], err
+    W = load(out)['W']
+    before, after = np.isfinite(W[:6]).any(axis=0), np.isfinite(W[6:]).any(axis=0)
+    assert before.any() and after.any() and not (before & after).any()
