@@ -349,3 +349,19 @@ def test_a_size_change_restarts_the_tracks_with_new_ids(tmp_path, capfd, frames)
     W = load(out)['W']
     before, after = np.isfinite(W[:6]).any(axis=0), np.isfinite(W[6:]).any(axis=0)
     assert before.any() and after.any() and not (before & after).any()
+
+
+def test_the_tracks_bag_and_the_complete_npz_are_what_reconstruct_reads(tmp_path, capsys,
+                                                                        frames):
+    folder = write_folder(tmp_path / 'frames', frames)
+    roi = ['--roi', 30, 20, 130, 100, '--quiet']
+    assert track(capsys, folder, '-o', tmp_path / 'tracks_bag', *roi)[0] == 0
+    assert cli.main(['reconstruct', str(tmp_path / 'tracks_bag'), '-o',
+                     str(tmp_path / 'points_bag'), '--quiet']) == 0
+    points = list(bag.read_points(tmp_path / 'points_bag'))
+    assert len(points) == N_FRAMES and all(len(p.ids) > 100 for p in points)
+    assert track(capsys, folder, '-o', tmp_path / 'complete.npz', '--complete', *roi)[0] == 0
+    assert cli.main(['reconstruct', str(tmp_path / 'complete.npz'), '-o',
+                     str(tmp_path / 'shapes.npz'), '--quiet']) == 0
+    W = load(tmp_path / 'complete.npz')['W']
+    assert load(tmp_path / 'shapes.npz')['S'].shape == (3 * N_FRAMES, W.shape[1])
