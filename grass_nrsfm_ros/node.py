@@ -242,7 +242,7 @@ class ReconstructionNode(Node):
     def _on_reset(self, request, response):
         """``~/reset``: drop the buffered frames, the window waiting and the model; the next
         frame starts a new sequence. A solve already running finishes and publishes."""
-        sequence = self.pipeline.windowing.sequence
+        sequence = self.pipeline.windowing.stats['resets'] + 1      # as 'sequences' counts
         backlog = self.pipeline.backend.outstanding
         dropped = self.pipeline.reset()
         self.counts['resets'] = self.pipeline.windowing.stats['resets']

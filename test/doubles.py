@@ -82,6 +82,15 @@ def sliding_windows(pipeline, W, ids):
     return out
 
 
+def paced(items, period):
+    """Yield ``items`` one per ``period`` s from the first (a sensor's rate, not a wait): the one
+    paced-publishing helper."""
+    start = time.monotonic()
+    for i, item in enumerate(items):
+        time.sleep(max(0.0, start + i * period - time.monotonic()))
+        yield item
+
+
 def wait_until(condition, timeout=60.0):
     """Poll ``condition()`` until it holds (True) or ``timeout`` s pass (False): the one polling
     helper for what gives no event to wait on (another process's state)."""

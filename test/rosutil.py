@@ -19,6 +19,8 @@ from diagnostic_msgs.msg import DiagnosticArray  # noqa: I100
 from rclpy.executors import SingleThreadedExecutor
 from sensor_msgs.msg import PointCloud2
 
+from doubles import paced  # noqa: I100
+
 TEST_DIR = Path(__file__).resolve().parent
 #: the feeder's ``points`` history by default (test_node, which needs every cloud, asks for
 #: the node's window_size, 30, as the README advises: with 10, a window's burst overwrote 3 of
@@ -170,9 +172,7 @@ class Feeder:
 def publish(feeder, messages, period=1 / 30):
     """Publish ``messages`` on the feeder's ``tracks`` at a sensor's rate, one per ``period`` s
     (a rate, not a wait)."""
-    start = time.monotonic()
-    for i, msg in enumerate(messages):
-        time.sleep(max(0.0, start + i * period - time.monotonic()))
+    for msg in paced(messages, period):
         feeder.publish(msg)
 
 

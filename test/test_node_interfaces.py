@@ -11,7 +11,7 @@ from rosbags.highlevel import AnyReader
 from rosbags.interfaces import QosReliability
 import yaml
 
-from doubles import bending_sheet
+from doubles import bending_sheet, paced
 from grass_nrsfm_ros import cloud
 from grass_nrsfm_ros.nrsfm.measurement import as_frames
 
@@ -132,9 +132,7 @@ def test_rates_and_stamp_delay_in_diagnostics(ros_env, tmp_path):
         clock = rclpy.clock.Clock()
         messages = [cloud.encode_tracks(ids, uv.T, Header(frame_id='camera'))
                     for uv in as_frames(W, 2)]
-        start = time.monotonic()
-        for i, msg in enumerate(messages):           # 6 s at 30 Hz, stamped when sent
-            time.sleep(max(0.0, start + i / 30 - time.monotonic()))
+        for msg in paced(messages, 1 / 30):            # 6 s at 30 Hz, stamped when sent
             msg.header.stamp = clock.now().to_msg()
             feeder.pub.publish(msg)
         during = statuses(feeder)              # the last report inside the stream

@@ -4,12 +4,12 @@ One synthetic sequence is converted to a tracks bag; the bag is reconstructed of
 CLI, and the same frames are published to a node process (real GrassmannNRSfM, default window
 parameters) slowly enough that no window is skipped. Every frame's cloud must agree.
 """
-import time
 
 import numpy as np
 import pytest
 from threadpoolctl import threadpool_limits
 
+from doubles import paced
 from grass_nrsfm_ros import bag, cli, cloud
 from grass_nrsfm_ros.nrsfm import e3d
 from grass_nrsfm_ros.nrsfm.measurement import as_frames
@@ -38,11 +38,10 @@ def feed(feeder, seq, stamps):
     """Publish the sequence's tracks at 10 Hz (a camera's rate, not a wait)."""
     uv = as_frames(seq.W, 2).transpose(0, 2, 1)
     ids = np.arange(seq.n_points, dtype=np.uint32)
-    for f, stamp in enumerate(stamps):
+    for f, stamp in paced(enumerate(stamps), PERIOD_NS / 1e9):
         header = Header(stamp=Time(sec=int(stamp) // 10 ** 9, nanosec=int(stamp) % 10 ** 9),
                         frame_id='camera')
         feeder.publish(cloud.encode_tracks(ids, uv[f], header))
-        time.sleep(PERIOD_NS / 1e9)
 
 
 def assert_same(live, offline, seq, stamps, what):

@@ -16,6 +16,7 @@ import time
 import numpy as np
 import pytest
 
+from doubles import paced
 from grass_nrsfm_ros import cloud, image
 
 rclpy = pytest.importorskip('rclpy')
@@ -145,9 +146,7 @@ class Camera:
     def send(self, frames, period=PERIOD):
         """Publish ``frames`` (Image messages) at a camera's rate, camera_info beside each
         (unless ``self.info`` is None)."""
-        start = time.monotonic()
-        for i, msg in enumerate(frames):
-            time.sleep(max(0.0, start + i * period - time.monotonic()))
+        for msg in paced(frames, period):
             if self.info is not None:
                 self.info.header = msg.header
                 self.info_pub.publish(self.info)
