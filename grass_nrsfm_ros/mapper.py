@@ -243,12 +243,9 @@ class Mapper:
         kwargs = {} if init is None else {'init': subset_init(init, keep)}
         if progress is not None and _accepts(solver.fit, 'progress'):
             kwargs['progress'] = progress
-        if self.warm_start == 'resume' and problem.n_context and hasattr(solver, 'get_params'):
-            cap = min(solver.get_params()['beta_max'], RESUMED_BETA_MAX)
-            if _accepts(solver.fit, 'beta_max'):
-                kwargs['beta_max'] = cap
-            elif not getattr(init, 'resumed', False):      # TODO(#40): until fit(beta_max=)
-                solver.set_params(beta_max=cap)
+        if self.warm_start == 'resume' and problem.n_context and hasattr(solver, 'get_params') \
+                and _accepts(solver.fit, 'beta_max'):
+            kwargs['beta_max'] = min(solver.get_params()['beta_max'], RESUMED_BETA_MAX)
         return kwargs
 
     def _results(self, problem, XY, Z):
