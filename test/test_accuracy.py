@@ -115,7 +115,7 @@ def test_perspective_subsets_beat_rigid(name):
 # ------------------------------------------------------------------------------ synthetic
 # kind -> measured e3D (orbit, shaky) at 60 frames x 500 points, seed 0; threshold +15%.
 # In brackets: without the inextensible depths (inextensible='never'); 'auto' uses them on all
-# but inflating (a stretching surface) here. The registered rotations (register_rotations) are
+# but inflating (a stretching surface) here. The registered rotations (stage 'registration') are
 # kept on all of those but articulated shaky; before them: bending (0.1561, 0.0671), waving
 # (0.2320, 0.2441), twisting (0.0608, 0.0329), articulated (0.0089, 0.0087).
 SYNTHETIC = {

@@ -121,7 +121,7 @@ def test_registered_rotations_fix_a_real_solve():
     test's threshold, ratio 0.598-0.608 against 0.6 as rounding moves it.)"""
     seq = make_sequence('twisting', n_frames=60, n_points=500, camera='orbit', seed=5)
     res = GrassmannNRSfM(inextensible='always').fit(seq.W)
-    without = GrassmannNRSfM(inextensible='always', register_rotations='never').fit(seq.W)
+    without = GrassmannNRSfM(inextensible='always').fit(seq.W, init=WarmStart())
     assert res.report.rotations_registered and res.report.rotation_method == 'dai'
     assert any(n.startswith('rotations registered') and n.endswith(', kept')
                for n in res.report.notes), res.report.notes
@@ -138,7 +138,7 @@ def test_registration_kept_only_when_the_edge_lengths_agree():
     so the first result stands, unchanged (the second would have been 1.1x worse)."""
     seq = make_sequence('articulated', n_frames=60, n_points=500, camera='shaky', seed=2)
     res = GrassmannNRSfM().fit(seq.W)
-    without = GrassmannNRSfM(register_rotations='never').fit(seq.W)
+    without = GrassmannNRSfM().fit(seq.W, init=WarmStart())     # no registration
     assert not res.report.rotations_registered
     assert any(n.endswith('not kept') for n in res.report.notes), res.report.notes
     np.testing.assert_array_equal(res.S, without.S)
@@ -149,7 +149,7 @@ def test_registration_needs_camera_motion():
     and kept, it would take e3D 0.137 -> 0.207, the registration following the deformation."""
     seq = make_sequence('twisting', n_frames=60, n_points=500, camera='wobble', seed=2)
     res = GrassmannNRSfM().fit(seq.W)
-    without = GrassmannNRSfM(register_rotations='never').fit(seq.W)
+    without = GrassmannNRSfM().fit(seq.W, init=WarmStart())     # no registration
     assert res.report.inextensible and not res.report.rotations_registered
     assert rotation_spread(res.R) < REGISTRATION_MIN_SPREAD
     assert not any(n.startswith('rotations registered') for n in res.report.notes)
@@ -218,8 +218,6 @@ def test_solver_option_is_validated():
     seq = make_sequence('bending', n_frames=10, n_points=50, seed=0)
     with pytest.raises(InvalidInputError, match='inextensible=True: expected str'):
         GrassmannNRSfM(inextensible=True).fit(seq.W)
-    with pytest.raises(InvalidInputError, match="register_rotations='always': expected one of"):
-        GrassmannNRSfM(register_rotations='always').fit(seq.W)
     with pytest.raises(InvalidInputError, match='R has 9 frames; expected 10'):
         refine_depth(seq.S, neighbour_edges(seq.W), R=seq.R[:-1])
 

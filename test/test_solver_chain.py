@@ -83,7 +83,9 @@ def test_fit_leaves_the_parameters_unchanged():
 
 
 @pytest.mark.parametrize('name', ['zeta_weight', 'local_rigidity', 'power_steps', 'eps',
-                                  'nuclear'])
+                                  'nuclear', 'resumed_beta_max', 'lambda3', 'lambda4',
+                                  'sigma_eps', 'affinity_min', 'regroup_every', 'delta',
+                                  'warm_beta0', 'register_rotations'])
 def test_deleted_options_are_refused(name):
     with pytest.raises(TypeError, match=name):
         GrassmannNRSfM(**{name: 1})
@@ -97,7 +99,7 @@ def test_a_resumed_warm_start_runs_the_cold_schedule_and_stages():
     cap = 10.0                          # the sliding windows' cap for a resumed solve
     plain = solver.fit(seq.W, init=warm)
     resumed = solver.fit(seq.W, init=replace(warm, resumed=True), beta_max=cap)
-    # from given shapes: warm_beta0 and the carried depths; resumed: beta0 and the refinement
+    # from given shapes: WARM_BETA0 and the carried depths; resumed: beta0 and the refinement
     assert 'refinement' not in plain.report.stages and 'refinement' in resumed.report.stages
     # resumed and capped: from beta0 until beta reaches the cap, every ADMM solve of the fit
     beta, schedule = solver.beta0, 1

@@ -11,7 +11,7 @@ import pytest
 
 from doubles import frames_of, RecordingGrassmann, RigidPerWindow, sliding_windows, stacked
 from grass_nrsfm_ros.mapper import RESUMED_BETA_MAX
-from grass_nrsfm_ros.nrsfm import GrassmannNRSfM
+from grass_nrsfm_ros.nrsfm import GrassmannNRSfM, WarmStart
 from grass_nrsfm_ros.nrsfm.faces import make_face_sequence
 from grass_nrsfm_ros.nrsfm.measurement import as_frames
 from grass_nrsfm_ros.nrsfm.metrics import e3d
@@ -35,8 +35,8 @@ def streamed(W, factory, **options):
 def errors(W, S):
     """``(streaming, whole-sequence, rigid per window)`` e3D. The whole-sequence solve is the
     one the windows run: without the rotation registration, which solves given a WarmStart
-    (the windows) skip."""
-    whole = GrassmannNRSfM(register_rotations='never').fit(W)
+    (the windows; here an empty one) skip."""
+    whole = GrassmannNRSfM().fit(W, init=WarmStart())
     return (e3d(streamed(W, GrassmannNRSfM), S), e3d(whole.S, S),
             e3d(streamed(W, RigidPerWindow, context_frames=0), S))
 

@@ -7,7 +7,9 @@ by the solver started from the rigid R and S at warm_beta0 0.01 (default), 0.1 a
 Quick: the dense face (60 x 2,000, frames 0-29; the bending sheet without the face model) and
 pickup's first 30 frames. ``--full`` adds the five synthetic kinds (orbit, 60 x 500).
 """
-from grass_nrsfm_ros.nrsfm import GrassmannNRSfM, WarmStart
+from unittest import mock
+
+from grass_nrsfm_ros.nrsfm import config, GrassmannNRSfM, WarmStart
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
 from grass_nrsfm_ros.nrsfm.synthetic import kinds
 from . import compare
@@ -24,10 +26,12 @@ class Rigid:
 
 
 def from_rigid(warm_beta0):
-    """A fit started from the rigid factorisation's R and S at ``warm_beta0``."""
+    """A fit started from the rigid factorisation's R and S at ``warm_beta0``
+    (config.WARM_BETA0, a parameter until record 0430)."""
     def fit(W):
         R, S = rigid_factorisation(W)
-        return GrassmannNRSfM(warm_beta0=warm_beta0).fit(W, init=WarmStart(R=R, S=S))
+        with mock.patch.object(config, 'WARM_BETA0', warm_beta0):
+            return GrassmannNRSfM().fit(W, init=WarmStart(R=R, S=S))
     return fit
 
 

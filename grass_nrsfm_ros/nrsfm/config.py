@@ -2,7 +2,8 @@
 
 ``params``: the dict :func:`.schema.validate_solver` returns. The validated parameters are
 never changed; each solve gets its own settings (sizes resolved from ``(F, P)``, the spatial
-branch switched off where a single group would remain, gamma made absolute).
+branch switched off where a single group would remain, gamma made absolute) and this module's
+constants (the numbers of Algorithm 1 that are not parameters).
 """
 import numpy as np
 
@@ -10,6 +11,21 @@ from .admm import AdmmSettings
 
 #: points per spatial group that 'auto' K_s aims at, in units of N_s + 1
 POINTS_PER_GROUP = 20
+#: constants of Algorithm 1 that no user needs to set (parameters until docs/decisions/0430):
+#: the nuclear-norm weights on C_s and C_t: the Grassmann terms change almost nothing (0502)
+LAMBDA3 = 0.1
+LAMBDA4 = 0.1
+#: xi's LRR affinity |C|^SIGMA_EPS and its gate: groups or blocks exchange points only at an
+#: affinity of at least AFFINITY_MIN (the paper's; record 0007)
+SIGMA_EPS = 4.0
+AFFINITY_MIN = 0.5
+#: iterations between xi's regroupings (record 0007)
+REGROUP_EVERY = 10
+#: numerical safeguard of the kernels Omega: adds DELTA * trace(Omega) / K * I
+DELTA = 1e-8
+#: initial beta of a solve from given shapes that are not resumed (a sliding window's rigid
+#: start; records 0011, 0035): it lets the run move as far from its start as it needs
+WARM_BETA0 = 0.01
 
 
 def sizes(params, F, P, groups):
@@ -48,11 +64,9 @@ def admm_settings(params, F, P, groups, spatial):
     K_s, K_t, N_s, N_t = sizes(params, F, P, groups)
     return AdmmSettings(
         gamma=params['gamma'] * np.sqrt(F * P), lambda1=params['lambda1'],
-        lambda2=params['lambda2'], lambda3=params['lambda3'], lambda4=params['lambda4'],
-        sigma_eps=params['sigma_eps'], affinity_min=params['affinity_min'],
-        regroup_every=params['regroup_every'], delta=params['delta'], rho=params['rho'],
-        beta0=params['beta0'], beta_max=params['beta_max'],
-        warm_beta0=params['warm_beta0'],
+        lambda2=params['lambda2'], lambda3=LAMBDA3, lambda4=LAMBDA4, sigma_eps=SIGMA_EPS,
+        affinity_min=AFFINITY_MIN, regroup_every=REGROUP_EVERY, delta=DELTA, rho=params['rho'],
+        beta0=params['beta0'], beta_max=params['beta_max'], warm_beta0=WARM_BETA0,
         smoothness=params['smoothness'], spatial=spatial, temporal=params['temporal'],
         random_state=params['random_state'], max_iter=params['max_iter'], K_s=K_s, K_t=K_t,
         N_s=N_s, N_t=N_t)

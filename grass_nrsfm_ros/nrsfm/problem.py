@@ -22,7 +22,7 @@ class WarmStart:
     given are estimated (None: the solver's ``rotations`` parameter; a method given skips the
     'auto' check, e.g. one a previous solve of overlapping frames chose). ``resumed``: the
     shapes resume a previous window's solution, so the solve runs as a cold one from them (the
-    penalty from beta0, not warm_beta0; the inextensible depths, or on sparse tracks the
+    penalty from beta0, not config.WARM_BETA0; the inextensible depths, or on sparse tracks the
     smoothness prior); its cap is the caller's (``fit(..., beta_max=)``). Every field is
     optional.
     """

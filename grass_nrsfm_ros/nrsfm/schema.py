@@ -138,53 +138,54 @@ def _mode(name, default, choices, description, group='solver'):
 
 SOLVER_PARAMS = (
     _number('gamma', 1e-3, 'Nuclear-norm weight on S#, relative: gamma * sqrt(F P) on '
-            'unit-RMS tracks.'),
+            'unit-RMS tracks. The trade between fit and shape rank: raise it where noise '
+            'should not be read as deformation, lower it to keep finer deformations.'),
     _number('smoothness', 1e-4, 'Temporal smoothness prior (lam/2)||D S||^2 on the world '
             'shapes (D: second differences over frames), relative to the roughness of the '
-            'tracks; 0: off. Cold solves, and resumed ones of sparse tracks (where the '
-            'inextensible refinement does not apply); not from other given shapes.'),
-    _number('lambda1', 1.0, 'Weight of the spatial self-expression error ||T_s - T_s C_s||^2.'),
-    _number('lambda2', 1.0, 'Weight of the temporal self-expression error ||T_t - T_t C_t||^2.'),
-    _number('lambda3', 0.1, 'Nuclear-norm weight on the spatial coefficients C_s.'),
-    _number('lambda4', 0.1, 'Nuclear-norm weight on the temporal coefficients C_t.'),
-    _auto_or_count('K_rot', "Rank used by the rotation step ('auto': chosen from the data)."),
+            'tracks; 0: off (motion that is not smooth from frame to frame, e.g. frames '
+            'subsampled from a long recording). Cold solves, and resumed ones of sparse tracks '
+            '(where the inextensible refinement does not apply); not from other given shapes.'),
+    _number('lambda1', 1.0, 'Weight of the spatial self-expression error ||T_s - T_s C_s||^2 '
+            "(the paper's 1); for studies of the Grassmann terms, which change little here "
+            '(docs/decisions/0502).'),
+    _number('lambda2', 1.0, 'Weight of the temporal self-expression error ||T_t - T_t C_t||^2 '
+            "(the paper's 1); for studies of the Grassmann terms, as lambda1."),
+    _auto_or_count('K_rot', "Rank used by the rotation step ('auto': chosen from the data); set "
+                   'it where the number of deformation modes is known.'),
     _mode('rotations', 'auto', ('auto', 'dai', 'rigid'),
           "Rotation estimate in cold solves: 'dai' (Dai et al. 2014), 'rigid' (Tomasi-Kanade), "
           "or 'auto': Dai's unless the rigid rotations give shapes whose S# nuclear norm is "
-          f'{100 * ROTATION_MARGIN:.0f} % lower.'),
-    _auto_or_count('K_s', "Number of spatial groups (trajectory subspaces); 'auto': from P."),
+          f"{100 * ROTATION_MARGIN:.0f} % lower. Set one to skip the check's two extra solves "
+          "('rigid' for a nearly rigid object)."),
+    _auto_or_count('K_s', "Number of spatial groups (trajectory subspaces); 'auto': from P. Set "
+                   'it for an object of a known number of parts that move apart.'),
     _auto_or_count('K_t', "Number of contiguous temporal blocks (shape subspaces); 'auto': "
-                   'from F.'),
-    _auto_or_count('N_s', "Rank kept per spatial group by zeta; 'auto': from F."),
+                   'from F. Set it for a sequence whose shapes change by phases.'),
+    _auto_or_count('N_s', "Rank kept per spatial group by zeta; 'auto': from F. Set it where "
+                   'the parts deform with more (or fewer) modes.'),
     _auto_or_count('N_t', "Rank kept per temporal block by zeta; 'auto': from the block "
-                   'length.'),
-    _number('sigma_eps', 4.0, 'Power of the LRR affinity |X X^T|^sigma_eps used by xi.',
-            open_low=True),
-    _number('affinity_min', 0.5, 'Groups exchange points only if their affinity is at least '
-            'this.', high=1.0),
-    _count('regroup_every', 10, 'Iterations between xi regroupings (0: never regroup).'),
+                   'length. As N_s, over time.'),
     _mode('inextensible', 'auto', ('auto', 'always', 'never'),
           "After a cold solve, each frame's depths made inextensible (edge lengths from the "
           "longest image lengths): 'auto' on dense tracks (P >= "
           f'{INEXTENSIBLE_MIN_POINTS}) when that cuts the variation of the 3D edge lengths '
-          f"below {INEXTENSIBLE_RATIO:g} of the solver's, 'always', or 'never' (the paper)."),
-    _mode('register_rotations', 'auto', ('auto', 'never'),
-          "After a solve given no warm start whose inextensible depths were kept: 'auto' "
-          'registers the rotations to those shapes, solves again with them and keeps that '
-          'result when its edge lengths vary less (if the rotations spread by more than '
-          f"{REGISTRATION_MIN_SPREAD:g} degrees); or 'never'."),
+          f"below {INEXTENSIBLE_RATIO:g} of the solver's, 'always', or 'never' (the paper; "
+          'a surface known to stretch). A solve given no warm start whose depths are kept '
+          'then tries rotations registered to them, kept when its edge lengths vary less.'),
     _mode('thinning', 'auto', ('auto', 'never'),
           "'auto': where a cluster of tracks is far denser than the rest of the surface "
           f'(P >= {THINNING_MIN_POINTS}), the shapes are solved on a thinned set and the '
-          "dropped tracks filled in from their neighbours; 'never': every track is solved."),
-    _number('delta', 1e-8, 'Omega safeguard: adds delta * trace(Omega) / K * I.'),
-    _number('rho', 1.2, 'Growth factor of the penalty beta per iteration.', 1.0, open_low=True),
-    _number('beta0', 1e-3, 'Initial penalty beta.', open_low=True),
-    _number('beta_max', 1e6, 'Largest penalty (>= beta0); the run stops when beta reaches it.',
+          "dropped tracks filled in from their neighbours; 'never': every track is solved "
+          '(a dense cluster whose own detail matters).'),
+    _number('rho', 1.2, 'Growth factor of the penalty beta per iteration: closer to 1 for a '
+            'slower, more gradual schedule (more iterations).', 1.0, open_low=True),
+    _number('beta0', 1e-3, 'Initial penalty beta (also of a resumed solve): lower lets the '
+            'first iterations move further from the start.', open_low=True),
+    _number('beta_max', 1e6, 'Largest penalty (>= beta0); the run stops when beta reaches it. '
+            'Lower it for a faster, less converged solve (a call may cap it: fit(beta_max=)).',
             open_low=True),
-    _number('warm_beta0', 0.01, 'Initial beta when initial shapes are given (warm start).',
-            open_low=True),
-    Param('random_state', 0, None, 'Seed for the k-means++ grouping and the rotation step.',
+    Param('random_state', 0, None, 'Seed for the k-means++ grouping and the rotation step; '
+          'another seed (or None) to see how much a result owes to its random starts.',
           range=(0, INT_MAX), group='solver', number=int, nullable=True),
     # research switches: no default uses them
     Param('spatial', True, bool, 'Use the spatial Grassmann branch (C_s, xi_s, zeta_s); '

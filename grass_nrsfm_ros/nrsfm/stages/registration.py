@@ -1,5 +1,5 @@
-"""Stage 'registration' (register_rotations='auto', after a solve given no warm start whose
-inextensible depths were kept, rotations spread by more than REGISTRATION_MIN_SPREAD degrees):
+"""Stage 'registration' (after a solve given no warm start whose inextensible depths were
+kept, rotations spread by more than REGISTRATION_MIN_SPREAD degrees):
 the rotations registered to the refined shapes (:func:`..inextensible.register_rotations`),
 the shape pass solved again with them, and the second result kept when its inextensible depths
 are used too and its edge lengths vary less (on the refinement's check tracks).
@@ -7,6 +7,9 @@ are used too and its edge lengths vary less (on the refinement's check tracks).
 Speaks ``S: (3F, P)``, ``R: (F, 3, 3)`` of :class:`~..problem.NRSfMResult` s.
 Report: ``rotations_registered``, a note, ``seconds['rotation registration']``; the kept
 result's report keeps the first's rotation fields and notes.
+
+No switch (the parameter register_rotations until docs/decisions/0430): the second result is
+kept only when it measures better. A solve given a WarmStart, even an empty one, skips it.
 """
 from .refinement import check_tracks
 from ..inextensible import length_variation, neighbour_edges, register_rotations
@@ -17,8 +20,7 @@ NAME = 'registration'
 
 
 def applies(problem, params, result):
-    return (params['register_rotations'] == 'auto' and not problem.given
-            and result.report.inextensible
+    return (not problem.given and result.report.inextensible
             and rotation_spread(result.R) > REGISTRATION_MIN_SPREAD)
 
 
