@@ -32,9 +32,9 @@ from std_srvs.srv import Trigger
 from threadpoolctl import threadpool_limits
 from visualization_msgs.msg import Marker
 
-from grass_nrsfm_ros import cloud, diagnostics, mesh, params, qos as offered_qos, rates
+from grass_nrsfm_ros import cloud, diagnostics, mesh, params, rates
 from grass_nrsfm_ros.backends import fix_mmap_threshold
-from grass_nrsfm_ros.bag import Recorder
+from grass_nrsfm_ros.bag import offered_qos, Recorder
 from grass_nrsfm_ros.input_qos import InputSubscription
 from grass_nrsfm_ros.marker import mesh_marker
 from grass_nrsfm_ros.pipeline import LATENCY_WINDOW, make_pipeline

@@ -8,7 +8,8 @@ import pytest
 from rosbags.interfaces import QosDurability, QosHistory, QosReliability
 from rosbags.rosbag2.metadata import parse_qos
 
-from grass_nrsfm_ros import mesh, qos, rates
+from grass_nrsfm_ros import mesh, rates
+from grass_nrsfm_ros.bag import offered_qos as qos
 
 
 def test_frequency_over_the_sliding_window_and_its_bounds():

@@ -16,9 +16,9 @@ import yaml
 from grass_nrsfm_ros.bag.messages import (BagError, cloud_cdr, GROUND_TRUTH_TOPIC,
                                           message_definition, POINTCLOUD2, POINTS_TOPIC,
                                           serialize, TRACKS_TOPIC, typestore)
+from grass_nrsfm_ros.bag.offered_qos import offered_qos_list
 from grass_nrsfm_ros.cloud import points_array, tracks_array
 from grass_nrsfm_ros.nrsfm.measurement import as_frames, validate_shapes, validate_tracks
-from grass_nrsfm_ros.qos import offered_qos_list
 
 DEFAULT_CHUNK_SIZE = 256 * 1024          # bytes of messages per MCAP chunk
 ROSBAG2_VERSION = 9                      # Jazzy
