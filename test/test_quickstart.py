@@ -5,10 +5,13 @@ The figures for the embedded sequence (bending sheet, orbit, 60 x 3,000): whole 
 0.1356 (rigid factorisation 0.3036; the README's accuracy table, row synthetic_bending); live
 0.2190 as tracked on arrival (its first 30 frames before the first model), 0.1826 refined by
 the windows. From images (40 rendered frames of a textured bending sheet, 320 x 240, tracked
-by DenseTracker at step 5, the 454 tracks alive in every frame): tracking error median 0.45 px,
-p95 1.98 px against the renderer's truth; e3D whole sequence 0.0794 (rigid factorisation
-0.1404), live 0.1011 as tracked on arrival, 0.0798 refined (front end at d55895a). The bounds below are those
-figures + 15 %, the rule test_accuracy uses.
+by DenseTracker at step 5, front end at d55895a: 454 tracks alive in every frame): tracking
+error median 0.45 px, p95 1.98 px against the renderer's truth; e3D whole sequence 0.0794
+(0.0988 from the true projections of the same points, rigid factorisation 0.1404), live
+0.1011 as tracked on arrival, 0.0798 refined. The bounds below are those figures + 15 %, the
+rule test_accuracy uses; from images, where a better tracker may change the solver's e3D
+either way, the bounds are relative: e3D from the tracks at most 1.2 times e3D from perfect
+tracks (issue #39's bar), the live figures against the whole-sequence one.
 """
 import os
 from pathlib import Path
@@ -26,7 +29,6 @@ from grass_nrsfm_ros.nrsfm import e3d
 REPO = Path(__file__).resolve().parents[1]
 WHOLE_E3D, LIVE_E3D, REFINED_E3D = 0.1356, 0.2190, 0.1826
 IMAGE_MEDIAN_PX, IMAGE_P95_PX = 0.45, 1.98
-IMAGE_WHOLE_E3D, IMAGE_LIVE_E3D, IMAGE_REFINED_E3D = 0.0794, 0.1011, 0.0798
 
 
 def readme_command(marker):
@@ -126,9 +128,9 @@ def test_demo_runs_and_its_outputs_hold_what_it_prints(tmp_path):
                                     r'median ([\d.]+) px, p95 ([\d.]+) px', run.stdout)
     assert complete >= 300
     assert median < 1.15 * IMAGE_MEDIAN_PX and p95 < 1.15 * IMAGE_P95_PX
-    whole, rigid, live, refined = printed(
-        r'from images: whole sequence e3D ([\d.]+) \(rigid factorisation ([\d.]+)\); live '
-        r'e3D ([\d.]+) as tracked on arrival, ([\d.]+) refined', run.stdout)
-    assert whole < 1.15 * IMAGE_WHOLE_E3D and whole < rigid
-    assert live < 1.15 * IMAGE_LIVE_E3D and live < rigid
-    assert refined < 1.15 * IMAGE_REFINED_E3D and refined < rigid
+    whole, perfect, rigid, live, refined = printed(
+        r'from images: whole sequence e3D ([\d.]+) \(perfect tracks of the same points ([\d.]+), '
+        r'rigid factorisation ([\d.]+)\); live e3D ([\d.]+) as tracked on arrival, ([\d.]+) '
+        r'refined', run.stdout)
+    assert whole <= 1.2 * perfect and perfect < 0.15
+    assert live < 2 * whole and refined < 1.15 * whole
