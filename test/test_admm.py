@@ -7,7 +7,8 @@ import pytest
 from conftest import data_root
 from doubles import wobbling_rotations
 from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM, InvalidInputError, WarmStart
-from grass_nrsfm_ros.nrsfm.admm import AdmmState
+from grass_nrsfm_ros.nrsfm.admm import (AdmmState, closed_form_shapes, coefficient_step,
+                                        dual_step, nuclear_of_factors)
 from grass_nrsfm_ros.nrsfm.config import admm_settings
 from grass_nrsfm_ros.nrsfm.rotation import align_rotations, rigid_factorisation
 from grass_nrsfm_ros.nrsfm.schema import solver_defaults
@@ -135,6 +136,44 @@ def test_sharp_step_thresholds_singular_values_wide_and_tall():
     sv_in, sv_out = (np.linalg.svd(A, compute_uv=False) for A in (X, wide))
     np.testing.assert_allclose(sv_out, np.maximum(sv_in - 2.0, 0.0), atol=1e-9)
     assert np.isclose(nuclear, sv_out.sum()) and np.isclose(nuclear_tall, sv_out.sum())
+
+
+def test_closed_form_shapes_solve_the_per_frame_normal_equations():
+    """The S update without the prior is the solution of ``(R^T P R + beta I) S = R^T [W; 0]
+    + beta S# + Y1`` frame by frame (P keeps the two image rows)."""
+    F, n, beta = 5, 7, 3.0
+    rng = np.random.default_rng(1)
+    R = wobbling_rotations(F, rng)
+    W = rng.normal(size=(F, 2, n))
+    sharp, Y1 = rng.normal(size=(F, 3, n)), rng.normal(size=(F, 3, n))
+    out = np.empty((F, 3, n))
+    closed_form_shapes(R, R.transpose(0, 2, 1).copy(), W, sharp, Y1, beta,
+                       [np.empty((F, 3, n)) for _ in range(2)], out)
+    Pm = np.diag([1.0, 1.0, 0.0])
+    lhs = R.transpose(0, 2, 1) @ Pm @ R + beta * np.eye(3)
+    rhs = R[:, :2, :].transpose(0, 2, 1) @ W + beta * sharp + Y1
+    np.testing.assert_allclose(out, np.linalg.solve(lhs, rhs), atol=1e-12)
+
+
+def test_coefficient_and_dual_steps_and_the_nuclear_norm_of_factors():
+    """J is the SVT of C + Y/beta by lam_nuclear/beta with its nuclear norm, the dual step
+    moves Y by beta (C - J) and reports max |C - J|; the factored nuclear norm is that of the
+    matrix ``L chol(core)``."""
+    rng = np.random.default_rng(2)
+    A = rng.normal(size=(4, 4))
+    Omega, J, Y, beta = A @ A.T + np.eye(4), rng.normal(size=(4, 4)), rng.normal(size=(4, 4)), 2.0
+    C, J_new, nuclear = coefficient_step(Omega, J, Y, 0.5, 0.8, beta)
+    sv = np.linalg.svd(C + Y / beta, compute_uv=False)
+    np.testing.assert_allclose(np.linalg.svd(J_new, compute_uv=False),
+                               np.maximum(sv - 0.8 / beta, 0.0), atol=1e-12)
+    assert nuclear == pytest.approx(np.maximum(sv - 0.4, 0.0).sum())
+    Y_before = Y.copy()
+    gap = dual_step(Y, C, J_new, beta)
+    np.testing.assert_allclose(Y, Y_before + beta * (C - J_new))
+    assert gap == np.abs(C - J_new).max() > 0
+    L, core = rng.normal(size=(9, 3)), A[:3, :3] @ A[:3, :3].T
+    expected = np.linalg.svd(L @ np.linalg.cholesky(core), compute_uv=False).sum()
+    assert nuclear_of_factors(L, core) == pytest.approx(expected)
 
 
 def test_warm_start_with_true_shapes_converges_in_fewer_iterations():

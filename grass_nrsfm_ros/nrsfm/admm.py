@@ -15,6 +15,9 @@ self-expression coefficients.
 This module owns:
 
 * :class:`AdmmSettings`: the numbers of one solve (absolute gamma, sizes, switches);
+* the steps that need no state (shapes in their docstrings): :func:`closed_form_shapes`,
+  :func:`svt_of_gram`, :func:`svt_factors`, :func:`svt_tall`, :func:`coefficient_step`,
+  :func:`dual_step`, :func:`branch_objective`, the nuclear norms through Grams;
 * :class:`AdmmState`: the variables and one iteration (:meth:`AdmmState.iterate`);
 * :func:`stop_reason`: the stopping rule (every gap below GAP_TOLERANCE, or beta at beta_max);
 * :func:`run`: iterate until the rule says stop.
@@ -26,6 +29,7 @@ blocks (no ``(F, 3, P)`` temporary); S# is thresholded through its ``F x F`` Gra
 iterates as float32, with float64 Grams, eigen/QR steps and sums.
 """
 from dataclasses import dataclass, field
+from itertools import groupby
 import time
 
 import numpy as np
@@ -127,6 +131,106 @@ class Buffer:
         return self.flat[:F * rows * n].reshape(F, rows, n)
 
 
+def as_float64(block, buffer):
+    """``block: (F, r, n)`` as float64: itself when it is, else copied into ``buffer``."""
+    if block.dtype == np.float64:
+        return block
+    out = buffer.view(*block.shape)
+    out[...] = block
+    return out
+
+
+def add_gram(G, block, buffer):
+    """``G += X X^T`` (float64, ``G: (F, F)``) for a column block ``X: (F, 3, n)``."""
+    X = as_float64(block, buffer).reshape(G.shape[0], -1)
+    G += X @ X.T
+
+
+def regroup_due(every, K, it):
+    """Whether iteration ``it`` (from 0) regroups a branch of ``K`` groups: every ``every``-th
+    (never with ``every`` 0 or one group)."""
+    return bool(every and K > 1 and (it + 1) % every == 0)
+
+
+def closed_form_shapes(R, Rt, W, sharp, Y1, beta, work, out):
+    """The S update without the smoothness prior, per frame in closed form: the solution of
+    ``(R^T P R + beta I) S = R^T W + beta S# + Y1`` (P keeps the two image rows) is
+    ``S = R^T diag(scale) (R (beta S# + Y1) + [W; 0])``, ``scale = (1/(1+beta), 1/(1+beta),
+    1/beta)``. ``R, Rt: (F, 3, 3)`` (R and R^T), ``W: (F, 2, n)``, ``sharp, Y1: (F, 3, n)``;
+    ``work``: two ``(F, 3, n)`` scratch arrays; the result is written to ``out``."""
+    c = 1.0 / (1.0 + beta)
+    scale = np.array([c, c, 1.0 / beta], dtype=sharp.dtype)[None, :, None]
+    rhs = np.multiply(sharp, sharp.dtype.type(beta), out=work[0])
+    rhs += Y1
+    cam = np.matmul(R, rhs, out=work[1])
+    cam[:, :2, :] += W
+    cam *= scale
+    np.matmul(Rt, cam, out=out)
+
+
+def svt_of_gram(G, tau):
+    """The SVT by ``tau`` of a matrix X given its Gram ``G: (n, n)`` (``X X^T`` or ``X^T X``):
+    the Gram's eigenvectors ``vecs: (n, n)`` and ``shrink: (n,)``, ``max(s - tau, 0) / s`` of
+    the singular values s (0 where s is 0): ``SVT(X) = vecs diag(shrink) vecs^T X`` (or X
+    times it)."""
+    vals, vecs = np.linalg.eigh(G)
+    sv = np.sqrt(np.maximum(vals, 0.0))
+    shrink = np.where(sv > 0, np.maximum(sv - tau, 0.0) / np.where(
+        sv > 0, sv, 1.0), 0.0)
+    return vecs, shrink
+
+
+def svt_factors(G, tau):
+    """The wide SVT by ``tau`` of ``X: (F, m)`` from its Gram ``G: (F, F)``: ``left, right: (F,
+    r)`` (r: the singular values kept) with ``SVT(X) = left right^T X``, and ``core = right^T G
+    right: (r, r)``, so that the result's Gram is ``left core left^T``."""
+    vecs, shrink = svt_of_gram(G, tau)
+    kept = shrink > 0
+    right = vecs[:, kept]                           # SVT: V diag(shrink) V^T, kept part
+    return right * shrink[kept], right, right.T @ G @ right
+
+
+def svt_tall(X, tau):
+    """The SVT by ``tau`` of a tall ``X: (F, m)`` (F > m) through its ``(m, m)`` Gram."""
+    # a general product, not numpy's symmetric one for X.T @ X: the rounding it always had
+    vecs, shrink = svt_of_gram(X.T @ X.copy(), tau)
+    return X @ ((vecs * shrink) @ vecs.T)
+
+
+def nuclear_of_gram(gram):
+    """The nuclear norm of a matrix of Gram ``gram``."""
+    return float(np.sqrt(np.maximum(np.linalg.eigvalsh(gram), 0.0)).sum())
+
+
+def nuclear_of_factors(L, core):
+    """:func:`nuclear_of_gram` of ``L core L^T`` (``L: (F, r)``, ``core: (r, r)`` PSD, r small)
+    through an ``(r, r)`` matrix with the Gram's nonzero eigenvalues."""
+    vals, vecs = np.linalg.eigh(core)
+    K = L @ (vecs * np.sqrt(np.maximum(vals, 0.0)))         # the Gram is K K^T
+    return float(np.sqrt(np.maximum(np.linalg.eigvalsh(K.T @ K), 0.0)).sum())
+
+
+def coefficient_step(Omega, J, Y, lam, lam_nuclear, beta):
+    """Algorithm 1's C and J steps of one branch (all ``(K, K)``): C in closed form
+    (:func:`~.grassmann.c_update`), then ``J = SVT(C + Y/beta)`` by ``lam_nuclear / beta``.
+    Returns ``(C, J, ||J||_*)``."""
+    C = gm.c_update(Omega, J, Y, lam, beta)
+    J, nuclear = gm.singular_value_threshold(C + Y / beta, lam_nuclear / beta)
+    return C, J, nuclear
+
+
+def dual_step(Y, C, J, beta):
+    """``Y += beta (C - J)`` in place (all ``(K, K)``); returns the gap ``max |C - J|``."""
+    Y += beta * (C - J)
+    return float(np.abs(C - J).max())
+
+
+def branch_objective(C, Omega, lam, lam_nuclear, nuclear_J):
+    """One branch's objective terms: ``lam ||T - T C||^2 + lam_nuclear ||J||_*`` (the first
+    from ``C, Omega: (K, K)``, :func:`~.grassmann.embedding_error`)."""
+    return lam * gm.embedding_error(C, Omega) + lam_nuclear * nuclear_J
+
+
 class AdmmState:
     """ADMM variables of Algorithm 1 and one iteration, on ``Wn: (2F, P)``, ``R: (F, 3, 3)``
     from world-frame initial shapes ``S0: (F, 3, P)``; ``groups: (P,)`` initial spatial labels
@@ -162,27 +266,22 @@ class AdmmState:
         self.t_edges = gm.contiguous_blocks(F, self.K_t)
         G = np.zeros((F, F))
         for _, cols in self.blocks:
-            self._add_gram(G, self.Ssh[:, :, cols])
+            add_gram(G, self.Ssh[:, :, cols], self.wide)
         self.t_bases = gm.block_bases(G, self.t_edges, self.N_t)
-        self.C_s = np.zeros((self.K_s, self.K_s))
-        self.J_s, self.Y2 = np.zeros_like(self.C_s), np.zeros_like(self.C_s)
-        self.C_t = np.zeros((self.K_t, self.K_t))
-        self.J_t, self.Y3 = np.zeros_like(self.C_t), np.zeros_like(self.C_t)
+        self.C_s, self.J_s, self.Y2 = (np.zeros((self.K_s, self.K_s)) for _ in range(3))
+        self.C_t, self.J_t, self.Y3 = (np.zeros((self.K_t, self.K_t)) for _ in range(3))
         self.nuc_jt = 0.0
-        self.Omega_s = self._omega_s()
-        self.Omega_t = gm.projection_kernel(gm.block_cross(G, self.t_edges, self.t_bases),
-                                            [v.shape[1] for v, _ in self.t_bases], s.delta)
+        self.Omega_s = gm.spatial_kernel(self.s_bases, s.delta)
+        self.Omega_t = gm.temporal_kernel(G, self.t_edges, self.t_bases, s.delta)
 
     def _layout(self, Wn, R, settings, labels, order, smooth):
         """Sizes, column order, stored tracks and rotations, block tiling and buffers."""
         F, P = R.shape[0], Wn.shape[1]
         s = settings
         self.F, self.P, self.s, self.R, self.smooth = F, P, s, R, smooth
-        self.gamma = s.gamma
-        self.K_t, self.N_s, self.N_t = s.K_t, s.N_s, s.N_t
+        self.gamma, self.K_t, self.N_s, self.N_t = s.gamma, s.K_t, s.N_s, s.N_t
         self.K_s = K_s = int(labels.max()) + 1
-        self.order = order
-        self.labels = labels[order]
+        self.order, self.labels = order, labels[order]
         self.s_edges = np.searchsorted(self.labels, np.arange(K_s + 1))
         self.data = None                    # ||Wn - R2 S||^2 of the last sweep
         self.dtype = dt = STORAGE_DTYPE if F * P >= FLOAT32_MIN_SIZE else np.float64
@@ -207,17 +306,10 @@ class AdmmState:
         return [gm.top_subspace(self._group(k).astype(np.float64), self.N_s)[0]
                 for k in range(self.K_s)]
 
-    def _omega_s(self):
-        stacked = np.concatenate(self.s_bases, axis=1)
-        return gm.projection_kernel(stacked.T @ stacked, [b.shape[1] for b in self.s_bases],
-                                    self.s.delta)
-
     def _regroup_spatial(self):
-        s = self.s
-        A = gm.lrr_affinity(self.C_s, s.sigma_eps)
         S2 = self.S.reshape(3 * self.F, self.P).astype(np.float64, copy=False)
-        new = gm.reassign_by_residual(S2, self.labels, self.s_bases, A, s.affinity_min,
-                                      self.N_s + 1)
+        new = gm.regroup_points(S2, self.labels, self.s_bases, self.C_s, self.s.sigma_eps,
+                                self.s.affinity_min, self.N_s)
         moved = int((new != self.labels).sum())
         if moved == 0:
             return
@@ -227,8 +319,7 @@ class AdmmState:
         self.order = self.order[perm]
         self.s_edges = np.searchsorted(self.labels, np.arange(self.K_s + 1))
         self.blocks = column_blocks(self.s_edges, self.width)
-        for name in ('W', 'S', 'Ssh', 'Y1'):
-            arr = getattr(self, name)
+        for arr in (self.W, self.S, self.Ssh, self.Y1):
             arr[...] = arr[:, :, perm]
         self.s_bases = self._spatial_bases_exact()
 
@@ -244,36 +335,17 @@ class AdmmState:
                 bases=self.s_bases[k:k + 1])
 
     # sweep 1: S update, spatial branch, Gram of X = S - Y1/beta, data term ----------------------
-    def _update_shapes(self, cols, beta, scale):
-        """S[:, :, cols] from ``(R^T P R + beta I) S = R^T W + beta S# + Y1`` per frame in
-        closed form: ``S = R^T diag(scale) (R (beta S# + Y1) + [W; 0])``, ``scale = (1/(1+beta),
-        1/(1+beta), 1/beta)``."""
-        F, n = self.F, cols.stop - cols.start
-        if self.smoother is not None:     # frames coupled: one banded solve (priors.py)
+    def _update_shapes(self, cols, beta):
+        """S[:, :, cols]: :func:`closed_form_shapes`, or with the smoothness prior (frames
+        coupled) one banded solve (priors.py)."""
+        if self.smoother is not None:
             rhs = self.Ssh[:, :, cols].astype(np.float64) * beta + self.Y1[:, :, cols]
             self.S[:, :, cols] = self.smoother.solve(self.W[:, :, cols].astype(np.float64),
                                                      rhs, beta)
             return
-        rhs = np.multiply(self.Ssh[:, :, cols], self.dtype(beta),
-                          out=self.buffers[0].view(F, 3, n))
-        rhs += self.Y1[:, :, cols]
-        cam = np.matmul(self.Rs, rhs, out=self.buffers[1].view(F, 3, n))
-        cam[:, :2, :] += self.W[:, :, cols]
-        cam *= scale
-        np.matmul(self.Rt, cam, out=self.S[:, :, cols])
-
-    def _wide(self, block):
-        """``block: (F, r, n)`` as float64 (a view when it already is)."""
-        if block.dtype == np.float64:
-            return block
-        out = self.wide.view(*block.shape)
-        out[...] = block
-        return out
-
-    def _add_gram(self, G, block):
-        """``G += X X^T`` (float64) for a column block ``X: (F, 3, n)``."""
-        X = self._wide(block).reshape(self.F, -1)
-        G += X @ X.T
+        work = [b.view(self.F, 3, cols.stop - cols.start) for b in self.buffers[:2]]
+        closed_form_shapes(self.Rs, self.Rt, self.W[:, :, cols], self.Ssh[:, :, cols],
+                           self.Y1[:, :, cols], beta, work, self.S[:, :, cols])
 
     def _gram_and_data(self, cols, beta, G):
         """Stores the block's ``X = S - Y1/beta``, adds its ``X X^T`` to G; returns the block's
@@ -282,35 +354,28 @@ class AdmmState:
         X = np.multiply(self.Y1[:, :, cols], self.dtype(-1.0 / beta),
                         out=blocked_view(self.X, F, 3, cols))
         X += self.S[:, :, cols]
-        self._add_gram(G, X)
+        add_gram(G, X, self.wide)
         resid = np.matmul(self.R2, self.S[:, :, cols], out=self.buffers[1].view(F, 2, n))
         resid -= self.W[:, :, cols]
-        resid = self._wide(resid)
+        resid = as_float64(resid, self.wide)
         return float(np.vdot(resid, resid))
 
     def _sweep_shapes(self, beta, regroup, timer, t):
         """Sweep 1. Returns ``(G: (F, F), ||W - R S||^2, t)``."""
-        F = self.F
-        c = 1.0 / (1.0 + beta)
-        scale = np.array([c, c, 1.0 / beta], dtype=self.dtype)[None, :, None]
-        spatial = self.s.spatial
-        G, data = np.zeros((F, F)), 0.0
+        G, data = np.zeros((self.F, self.F)), 0.0
         if regroup:
             for _, cols in self.blocks:
-                self._update_shapes(cols, beta, scale)
+                self._update_shapes(cols, beta)
             t = timer.add('s_update', t)
             self._regroup_spatial()
             t = timer.add('spatial', t)
-        todo = self.blocks
-        while todo:
-            k = todo[0][0]
-            group = [cols for g, cols in todo if g == k]
-            todo = todo[len(group):]
+        for k, pairs in groupby(self.blocks, key=lambda block: block[0]):
+            group = [cols for _, cols in pairs]
             if not regroup:
                 for cols in group:
-                    self._update_shapes(cols, beta, scale)
+                    self._update_shapes(cols, beta)
                 t = timer.add('s_update', t)
-            if spatial:
+            if self.s.spatial:
                 if not regroup:
                     self._update_group_basis(k)
                 self._zeta_group(k)
@@ -326,74 +391,36 @@ class AdmmState:
         block-diagonal zeta_t operator ``B: (F, F)`` and the blocks' bases (C_t, xi_t, J_t
         updated). Block k of ``B G1 B^T`` is ``V_k V_k^T G1_kk V_k V_k^T``, whose top
         eigenpairs are ``V_k``'s own: the bases of the projected S# too (no second eigh)."""
-        s, F = self.s, self.F
-        self.C_t = gm.c_update(self.Omega_t, self.J_t, self.Y3, s.lambda2, beta)
+        s = self.s
+        self.C_t, self.J_t, self.nuc_jt = coefficient_step(self.Omega_t, self.J_t, self.Y3,
+                                                           s.lambda2, s.lambda4, beta)
         bases = gm.block_bases(G1, self.t_edges, self.N_t)
-        if s.regroup_every and self.K_t > 1 and (it + 1) % s.regroup_every == 0:
-            A = gm.lrr_affinity(self.C_t, s.sigma_eps)
-            edges = gm.move_block_boundaries(G1, self.t_edges, bases, A,
-                                             s.affinity_min, self.N_t + 1)
-            if not np.array_equal(edges, self.t_edges):
-                self.t_edges = edges
-                bases = gm.block_bases(G1, edges, self.N_t)
-        B = np.eye(F)
-        for k, (v, _) in enumerate(bases):
-            r = slice(self.t_edges[k], self.t_edges[k + 1])
-            if v.shape[1] < r.stop - r.start:
-                B[r, r] -= np.eye(r.stop - r.start) - v @ v.T
-        self.J_t, self.nuc_jt = gm.singular_value_threshold(self.C_t + self.Y3 / beta,
-                                                            s.lambda4 / beta)
-        return B, bases
-
-    def _shrink(self, G, beta):
-        """Eigenvectors of a Gram matrix and the SVT factors ``max(s - gamma/beta, 0) / s``."""
-        vals, vecs = np.linalg.eigh(G)
-        sv = np.sqrt(np.maximum(vals, 0.0))
-        shrink = np.where(sv > 0, np.maximum(sv - self.gamma / beta, 0.0) / np.where(
-            sv > 0, sv, 1.0), 0.0)
-        return vecs, shrink
-
-    @staticmethod
-    def _nuclear(gram):
-        """The nuclear norm of a matrix of Gram ``gram``."""
-        return float(np.sqrt(np.maximum(np.linalg.eigvalsh(gram), 0.0)).sum())
-
-    @staticmethod
-    def _nuclear_of_factors(L, core):
-        """:meth:`_nuclear` of the Gram ``L core L^T`` (``L: (F, r)``, ``core: (r, r)`` PSD, r
-        small) through an ``(r, r)`` matrix with the Gram's nonzero eigenvalues."""
-        vals, vecs = np.linalg.eigh(core)
-        K = L @ (vecs * np.sqrt(np.maximum(vals, 0.0)))         # the Gram is K K^T
-        return float(np.sqrt(np.maximum(np.linalg.eigvalsh(K.T @ K), 0.0)).sum())
+        if regroup_due(s.regroup_every, self.K_t, it):
+            self.t_edges, bases = gm.regroup_blocks(G1, self.t_edges, bases, self.C_t,
+                                                    s.sigma_eps, s.affinity_min, self.N_t)
+        return gm.block_projector(self.F, self.t_edges, bases), bases
 
     def _sharp_operator(self, G, beta, it):
         """Wide case (F <= 3P), from the Gram ``G: (F, F)`` of X: ``S# = left right^T X``
-        with ``left, right: (F, r)`` (r: the singular values the SVT keeps), the Gram of S# and
-        its nuclear norm. Applied as two thin products, S# costs ``2 r / F`` of one ``F x F``
-        operator."""
-        vecs, shrink = self._shrink(G, beta)
-        kept = shrink > 0
-        right = vecs[:, kept]                           # SVT: V diag(shrink) V^T, kept part
-        left = right * shrink[kept]
-        core = right.T @ G @ right                      # Gram of S#: left core left^T
+        (:func:`svt_factors`, then zeta_t), the Gram of S# and its nuclear norm. Applied as two
+        thin products, S# costs ``2 r / F`` of one ``F x F`` operator."""
+        left, right, core = svt_factors(G, self.gamma / beta)
         G1 = left @ core @ left.T
         if self.s.temporal:
             B, self.t_bases = self._temporal(G1, beta, it)
             left = B @ left
             G1 = left @ core @ left.T
-        return (left, right), G1, self._nuclear_of_factors(left, core)
+        return (left, right), G1, nuclear_of_factors(left, core)
 
     def _sharp_tall(self, X, beta, it):
-        """Tall case (F > 3P): S# of ``X: (F, 3P)`` through the ``3P x 3P`` Gram."""
-        # a general product, not numpy's symmetric one for X.T @ X: the rounding it always had
-        vecs, shrink = self._shrink(X.T @ X.copy(), beta)
-        Z = X @ ((vecs * shrink) @ vecs.T)                          # = M X
+        """Tall case (F > 3P): S# of ``X: (F, 3P)`` (:func:`svt_tall`, then zeta_t)."""
+        Z = svt_tall(X, self.gamma / beta)
         G1 = Z @ Z.T
         if self.s.temporal:
             B, self.t_bases = self._temporal(G1, beta, it)
             Z = B @ Z
             G1 = Z @ Z.T
-        return Z, G1, self._nuclear(Z.T @ Z)
+        return Z, G1, nuclear_of_gram(Z.T @ Z)
 
     # sweep 2: S#, gap and Y1 ---------------------------------------------------------------------
     def _sweep_multipliers(self, beta, op=None, sharp=None):
@@ -424,45 +451,33 @@ class AdmmState:
         """One iteration of Algorithm 1; returns ``(objective, gaps)``."""
         s, beta, it = self.s, self.beta, self.iteration
         t = time.perf_counter()
-        regroup = bool(s.spatial and s.regroup_every and self.K_s > 1
-                       and (it + 1) % s.regroup_every == 0)
+        regroup = s.spatial and regroup_due(s.regroup_every, self.K_s, it)
         if s.spatial:
-            self.C_s = gm.c_update(self.Omega_s, self.J_s, self.Y2, s.lambda1, beta)
+            self.C_s, self.J_s, nuc_js = coefficient_step(self.Omega_s, self.J_s, self.Y2,
+                                                          s.lambda1, s.lambda3, beta)
         G, data, t = self._sweep_shapes(beta, regroup, timer, t)
-        if s.spatial:
-            self.J_s, nuc_js = gm.singular_value_threshold(self.C_s + self.Y2 / beta,
-                                                           s.lambda3 / beta)
         t = timer.add('spatial', t)
 
         # S# update: SVT of T1(S) - Y1/beta via the smaller Gram matrix, then zeta_t
+        op = sharp = None
         if self.tall:
             X = self.X.reshape(self.F, 3 * self.P).astype(np.float64)
             sharp, G1, nuclear = self._sharp_tall(X, beta, it)
-            op = None
         else:
             op, G1, nuclear = self._sharp_operator(G, beta, it)
-            sharp = None
         t = timer.add('temporal', t)
 
         obj = 0.0
         if s.spatial:
-            self.Omega_s = self._omega_s()
-            obj += s.lambda1 * gm.embedding_error(self.C_s, self.Omega_s) + s.lambda3 * nuc_js
+            self.Omega_s = gm.spatial_kernel(self.s_bases, s.delta)
+            obj += branch_objective(self.C_s, self.Omega_s, s.lambda1, s.lambda3, nuc_js)
         if s.temporal:
-            self.Omega_t = gm.projection_kernel(
-                gm.block_cross(G1, self.t_edges, self.t_bases),
-                [v.shape[1] for v, _ in self.t_bases], s.delta)
-            obj += (s.lambda2 * gm.embedding_error(self.C_t, self.Omega_t)
-                    + s.lambda4 * self.nuc_jt)
+            self.Omega_t = gm.temporal_kernel(G1, self.t_edges, self.t_bases, s.delta)
+            obj += branch_objective(self.C_t, self.Omega_t, s.lambda2, s.lambda4, self.nuc_jt)
 
         gap_sh = self._sweep_multipliers(beta, op, sharp)
-        gap_s = gap_t = 0.0
-        if s.spatial:
-            self.Y2 += beta * (self.C_s - self.J_s)
-            gap_s = float(np.abs(self.C_s - self.J_s).max())
-        if s.temporal:
-            self.Y3 += beta * (self.C_t - self.J_t)
-            gap_t = float(np.abs(self.C_t - self.J_t).max())
+        gap_s = dual_step(self.Y2, self.C_s, self.J_s, beta) if s.spatial else 0.0
+        gap_t = dual_step(self.Y3, self.C_t, self.J_t, beta) if s.temporal else 0.0
         self.data = data
         obj += 0.5 * data + self.gamma * nuclear
         if self.smoother is not None:

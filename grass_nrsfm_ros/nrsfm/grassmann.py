@@ -14,7 +14,8 @@ Gram matrices (``3F x 3F``, ``F x F``, ``p x p`` with ``p <= 3F``); no ``P x P``
 Functions (shapes in their docstrings): :func:`projection_kernel`, :func:`c_update`,
 :func:`singular_value_threshold`, :func:`lrr_affinity`, :func:`top_subspace`,
 :func:`subspace_iteration`, :func:`zeta`, :func:`initial_groups`, :func:`reassign_by_residual`,
-:func:`contiguous_blocks`, :func:`move_block_boundaries`.
+:func:`regroup_points`, :func:`contiguous_blocks`, :func:`move_block_boundaries`,
+:func:`regroup_blocks`, :func:`spatial_kernel`, :func:`temporal_kernel`, :func:`block_projector`.
 """
 import numpy as np
 from sklearn.cluster import KMeans, MiniBatchKMeans
@@ -33,6 +34,20 @@ def projection_kernel(cross, sizes, delta=1e-8):
     sq = 0.5 * (sq + sq.T)
     K = len(sizes)
     return sq + delta * max(np.trace(sq), 1.0) / K * np.eye(K)
+
+
+def spatial_kernel(bases, delta):
+    """Omega_s: (K, K), the :func:`projection_kernel` of the spatial points
+    ``bases[k]: (3F, r_k)`` (orthonormal columns)."""
+    stacked = np.concatenate(bases, axis=1)
+    return projection_kernel(stacked.T @ stacked, [b.shape[1] for b in bases], delta)
+
+
+def temporal_kernel(G, edges, bases, delta):
+    """Omega_t: (K, K), the :func:`projection_kernel` of the temporal points of
+    :func:`block_bases` (``G: (F, F)``, ``edges: (K+1,)``), through G only."""
+    return projection_kernel(block_cross(G, edges, bases), [v.shape[1] for v, _ in bases],
+                             delta)
 
 
 def embedding_error(C, Omega):
@@ -200,6 +215,14 @@ def reassign_by_residual(S, labels, bases, affinity, affinity_min, min_size):
     return new
 
 
+def regroup_points(S, labels, bases, C, power, affinity_min, rank):
+    """xi for spatial groups with the affinity of ``C: (K, K)`` (:func:`lrr_affinity`, then
+    :func:`reassign_by_residual` keeping ``> rank`` points a group); ``S: (3F, P)``,
+    ``labels: (P,)``, ``bases[k]: (3F, r_k)``. Returns the new labels ``(P,)``."""
+    return reassign_by_residual(S, labels, bases, lrr_affinity(C, power), affinity_min,
+                                rank + 1)
+
+
 def contiguous_blocks(F, K):
     """Edges ``(K+1,)`` of K contiguous, nearly equal blocks of ``range(F)``."""
     return np.round(np.linspace(0, F, K + 1)).astype(np.int64)
@@ -258,3 +281,25 @@ def move_block_boundaries(G, edges, bases, affinity, affinity_min, min_size):
         elif (edges[k + 2] - b > min_size and residual(first, k) < residual(first, k + 1)):
             new[k + 1] = b + 1
     return new
+
+
+def regroup_blocks(G, edges, bases, C, power, affinity_min, rank):
+    """xi for temporal blocks with the affinity of ``C: (K, K)`` (:func:`lrr_affinity`, then
+    :func:`move_block_boundaries` keeping ``> rank`` frames a block). Returns the edges and
+    their :func:`block_bases` (``edges``, ``bases`` themselves when no boundary moved)."""
+    new = move_block_boundaries(G, edges, bases, lrr_affinity(C, power), affinity_min, rank + 1)
+    if np.array_equal(new, edges):
+        return edges, bases
+    return new, block_bases(G, new, rank)
+
+
+def block_projector(F, edges, bases):
+    """zeta_t as an operator: the block-diagonal ``B: (F, F)`` whose block k is
+    ``V_k V_k^T`` for ``bases[k] = (V_k: (f_k, r_k), sv_k)`` of :func:`block_bases` (the
+    identity where ``r_k = f_k``), so that ``B X`` projects each block of ``X: (F, m)``."""
+    B = np.eye(F)
+    for k, (v, _) in enumerate(bases):
+        r = slice(edges[k], edges[k + 1])
+        if v.shape[1] < r.stop - r.start:
+            B[r, r] -= np.eye(r.stop - r.start) - v @ v.T
+    return B
