@@ -221,10 +221,10 @@ def track_summary(W):
     P = visible.shape[1]
     if P == 0:
         return 'no tracks (the region holds no texture?)'
-    lengths = visible.sum(axis=0)
+    length = int(np.median(visible.sum(axis=0)))
     return (f'{P} tracks ({int(visible[0].sum())} in frame 0, {int(visible[-1].sum())} in the '
             f'last, {int(visible.all(axis=0).sum())} in every frame; median length '
-            f'{int(np.median(lengths))} frames)')
+            f'{length} frame{"s" if length != 1 else ""})')
 
 
 class NpzSink:
