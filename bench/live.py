@@ -1,7 +1,7 @@
 """Live output (tracking on arrival, windows refining behind it) against the sliding windows.
 
-* offline accuracy (no ROS): the streaming bench's sequences plus a 300-frame slow face (its
-  head turn spans the whole sequence), run through
+* offline accuracy (no ROS): the streaming bench's sequences plus, with ``--full``, a 300-frame
+  slow face (its head turn spans the whole sequence), run through
   :func:`~grass_nrsfm_ros.pipeline.reconstruct_live` (each window solved inline as it
   closes): e3D of ``points`` (every frame as tracked on arrival, the bootstrap frames
   included) and of ``points/refined``, against the sliding windows (``points/refined`` with
@@ -184,8 +184,9 @@ def cpu_ratio(row, suffix='_per_window_s'):
 def run(mode):
     mapping_tracks = defaults()['mapping_tracks']
     sequences = accuracy_sequences(mode)
-    face = slow_face(mode.pick(300, 3000, 10000))
-    if face is not None and mode.name != 'smoke':
+    points = mode.pick(None, None, 10000)       # the slow face: --full only (28 windows)
+    face = slow_face(points) if points else None
+    if face is not None:
         sequences.append((SLOW_FACE, *face))
     rows, skipped = [], []
     for name, W, S in sequences:
