@@ -1,13 +1,25 @@
-"""Dense 2D tracks anchored to a reference frame (OpenCV optical flow, no ROS).
+"""Dense 2D tracks anchored to keyframes (OpenCV optical flow, no ROS).
 
-:class:`DenseTracker` follows the points of a grid of ``step`` pixels inside a region from a
-*reference* frame into each new frame: the flow is always computed from the reference to the
-current frame (never chained frame to frame), so a track's error does not grow with time. The
-reference is renewed ("re-anchored") when the appearance has changed too much or too much of
-the region has lost its tracks; then new tracks are born on the grid cells of the region that
-hold no track. A track dies when it leaves the image or fails a check (a photometric ZNCC check
-of its patch against the reference, and optionally a forward-backward check): occlusion shows
-up as a failed check. Ids are never reused within a sequence (until :meth:`reset`).
+:class:`DenseTracker` follows the points of a grid of ``step`` pixels inside a region. Each
+track is anchored to a *keyframe* (a past frame where its point is known) and is measured
+against it in every frame, so its error does not grow frame by frame:
+
+1. prediction: DIS optical flow from the last frame moves each track (in the box around the
+   tracks);
+2. refinement, per keyframe: the current frame, locally normalised (mean removed, contrast
+   equalised: blind to shading gain and offset), is warped into the keyframe by the smooth
+   displacement field of that keyframe's predicted tracks (so the turn and deformation since
+   the keyframe are undone), and Lucas-Kanade from the normalised keyframe measures what the
+   field missed at each track;
+3. checks: a ZNCC of each track's patch against its keyframe patch, taken in the warped frame
+   (optionally a forward-backward check); occlusion shows up as a failed check.
+
+A track whose patch has changed (ZNCC below ``reanchor_zncc``) or whose local area has
+changed by more than 0.7x / 1.4x since its keyframe is *stale*: when enough tracks are stale,
+the frame becomes a keyframe and they are re-anchored to it, keeping their ids. When too much
+of the region has no track, the frame becomes a keyframe and new tracks are born on the
+region's uncovered grid cells. A track dies when it leaves the image or fails a check. Ids are
+never reused within a sequence (until :meth:`reset`).
 
 Shapes and units:
 
@@ -15,14 +27,14 @@ Shapes and units:
   or 'bgr'), uint8, uint16 (scaled to 8 bits by the bit depth of the first uint16 frame) or
   float in [0, 1];
 * ``region``: None (the whole image), a bool mask ``(H, W)`` of the first frame (it moves
-  with the surface: at each re-anchoring it becomes the grid cells its tracks hold, holes
-  closed) or a rectangle ``(x0, y0, x1, y1)`` of pixels, bounds included (fixed
+  with the surface: at each keyframe with births it becomes the grid cells its tracks hold,
+  holes closed) or a rectangle ``(x0, y0, x1, y1)`` of pixels, bounds included (fixed
   in the image);
 * :class:`TrackFrame`: ``ids: (P,) uint32``, ``uv: (P, 2) float64`` pixels (pixel centres at
   integer coordinates, u to the right, v down), ``age: (P,) int64`` frames since birth,
   ``counts`` a dict of ints.
 
-A frame of another size than the reference raises :class:`FrameSizeError` (call
+A frame of another size than the first raises :class:`FrameSizeError` (call
 :meth:`DenseTracker.reset` to start a new sequence at the new size). A blank frame (black,
 saturated or flat) gives no tracks, warns once and keeps the state, so tracking resumes on the
 next good frame.
@@ -32,12 +44,12 @@ import warnings
 
 import cv2
 import numpy as np
-from scipy.spatial import cKDTree
 
-#: flow methods: a DIS preset from the reference to the frame (its last flow as the initial
-#: flow), optionally refined per track by Lucas-Kanade from the reference ('+lk'); or DIS
-#: from the previous frame predicting where LK from the reference starts ('/prev+lk'); or
-#: pyramidal Lucas-Kanade from the reference alone, starting at the last positions ('lk')
+#: flow methods: a DIS preset from the last frame predicts; '+lk' refines against the
+#: keyframe in the frame warped by the tracks' field (the default); '/prev+lk' refines by
+#: Lucas-Kanade from the keyframe without the warp (translation only, 1 pyramid level); a
+#: bare DIS preset has no refinement (chained DIS: it drifts); 'lk' predicts nothing (the
+#: last positions) and refines with the warp by pyramidal LK (2 levels)
 METHODS = ('dis-ultrafast', 'dis-fast', 'dis-medium',
            'dis-ultrafast+lk', 'dis-fast+lk', 'dis-medium+lk',
            'dis-ultrafast/prev+lk', 'dis-fast/prev+lk', 'dis-medium/prev+lk', 'lk')
@@ -46,9 +58,34 @@ _DIS_PRESETS = {'dis-ultrafast': cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST,
                 'dis-medium': cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}
 DEFAULT_METHOD = 'dis-fast+lk'
 _PATCH_RADIUS = 5                  # photometric check and texture test on 11 x 11 patches
-_MAX_REFINEMENT = 1.0              # px: DIS and its LK refinement disagreeing more: failed
+_MAX_REFINEMENT = 2.0              # px: prediction and its LK refinement disagreeing more: failed
 _COVER_RADIUS = 0.75               # grid steps: a grid point with no track this near is uncovered
 _BORDER = 2.0                      # a track closer than this to the image edge has left it
+_AREA_CHANGE = 0.7                 # area ratio to its keyframe below this (or above 1 / this):
+#                                    the track is stale (re-anchored at the next keyframe)
+_STALE_SHARE = 0.02                # a new keyframe when more of the tracks than this are stale
+_FLOW_MARGIN = 24                  # px around the tracks where DIS last -> current runs
+_WARP_MARGIN = 8                   # px around a keyframe's tracks warped (plus the LK window)
+_MIN_BOX = 48                      # px: the smallest box DIS and the warp run in
+_FIELD_SIGMA = 4.0                 # px: smoothing of the displacement field of the tracks
+_NORM_SIGMA = 4.0                  # px: windows of the local normalisation before LK
+
+
+@dataclass(frozen=True, eq=False)
+class _Keyframe:
+    """A frame tracks are anchored to: ``grey (H, W) uint8`` and its :func:`_normalise`."""
+
+    grey: np.ndarray
+    normalised: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class _Crop:
+    """A box of a frame: ``image (h, w)`` whose pixel (0, 0) is the frame's ``origin
+    (x0, y0)`` (float32)."""
+
+    image: np.ndarray
+    origin: np.ndarray
 
 
 class FrameSizeError(ValueError):
@@ -61,8 +98,8 @@ class TrackFrame:
 
     ``ids: (P,) uint32``, ``uv: (P, 2) float64`` pixels, ``age: (P,) int64`` frames since
     each track was born; ``counts``: 'alive', 'born', 'lost' (died this frame: 'left' the
-    image or 'failed' a check), 'failed', 'left', 'reanchored' (1 when this frame became the
-    reference), 'blank' (1 for a blank frame, which has no tracks); ``K: (3, 3)`` or None.
+    image or 'failed' a check), 'failed', 'left', 'reanchored' (1 when this frame became a
+    keyframe), 'blank' (1 for a blank frame, which has no tracks); ``K: (3, 3)`` or None.
     """
 
     ids: np.ndarray
@@ -81,30 +118,34 @@ class TrackFrame:
 
 
 class DenseTracker:
-    """Dense grid tracks anchored to a reference frame; one instance per image stream.
+    """Dense grid tracks anchored to keyframes; one instance per image stream.
 
     ``step`` grid spacing in pixels (int >= 1); ``region`` None, a bool mask ``(H, W)`` or a
     rectangle ``(x0, y0, x1, y1)``; ``method`` one of :data:`METHODS`; ``K`` optional
     intrinsics ``(3, 3)`` carried into each :class:`TrackFrame`.
 
-    Checks: ``min_zncc`` (a track whose 11 x 11 patch correlates less than this with its
-    reference patch dies), ``fb_max_px`` (forward-backward distance above which a track dies;
-    None: no forward-backward check). Re-anchoring: when the median ZNCC of the tracks falls
-    below ``reanchor_zncc``, when more than ``reanchor_uncovered`` of the region's grid cells
-    hold no track (a grid point is covered by a track within 0.75 steps), or every
-    ``reanchor_every`` frames (None: never by count). Births only on cells whose reference
-    patch has a grey-level standard deviation of at least ``min_texture``. ``lk_window``
-    (odd) and ``lk_levels`` (pyramid levels; None: 0 after DIS from the reference, 1 after
-    DIS from the previous frame, 3 for 'lk') set the Lucas-Kanade refinement, which fails a
-    track when it moves it more than 1 px from DIS; ``channel_order`` of colour frames;
+    Checks: ``min_zncc`` (a track whose 11 x 11 normalised patch correlates less than this
+    with its keyframe patch, in the warped frame, dies), ``fb_max_px`` (forward-backward
+    distance above which a track dies; None: no forward-backward check). Keyframes: a track
+    is stale when its ZNCC is below ``reanchor_zncc`` or its area changed 0.7x / 1.4x; the
+    frame becomes a keyframe (stale tracks re-anchored to it) when more than 2 % of the
+    tracks are stale, when more than ``reanchor_uncovered`` of the region's grid cells hold
+    no track (a grid point is covered by a track within 0.75 steps; then tracks are born),
+    or every ``reanchor_every`` frames (None: never by count; then every track is
+    re-anchored and tracks are born). At most ``max_keyframes`` are kept: beyond, the
+    tracks of the one holding fewest are re-anchored to the new one. Births only on cells
+    whose patch has a grey-level standard deviation of at least ``min_texture``.
+    ``lk_window`` (odd) and ``lk_levels`` (pyramid levels; None: 0 for 'dis-*+lk', 1 for
+    '/prev+lk', 2 for 'lk') set the Lucas-Kanade refinement, which fails a track when it
+    moves it more than 2 px from the DIS prediction; ``channel_order`` of colour frames;
     ``blank_std``: a frame whose grey levels vary less than this is blank. Why these
     defaults: docs/decisions/0600.
     """
 
     def __init__(self, step=4, region=None, method=DEFAULT_METHOD, *, K=None, min_zncc=0.8,
-                 fb_max_px=None, reanchor_zncc=0.9, reanchor_uncovered=0.1,
+                 fb_max_px=None, reanchor_zncc=0.85, reanchor_uncovered=0.1,
                  reanchor_every=None, min_texture=2.0, lk_window=11, lk_levels=None,
-                 channel_order='rgb', blank_std=2.0):
+                 channel_order='rgb', blank_std=2.0, max_keyframes=4):
         if isinstance(step, bool) or not isinstance(step, (int, np.integer)) or step < 1:
             raise ValueError(f'step must be an int >= 1 pixel; got {step!r}')
         if method not in METHODS:
@@ -124,6 +165,9 @@ class DenseTracker:
                              f'{reanchor_every!r}')
         if not isinstance(lk_window, (int, np.integer)) or lk_window < 3 or lk_window % 2 == 0:
             raise ValueError(f'lk_window must be an odd int >= 3; got {lk_window!r}')
+        if isinstance(max_keyframes, bool) or not isinstance(max_keyframes, (int, np.integer)) \
+                or max_keyframes < 1:
+            raise ValueError(f'max_keyframes must be an int >= 1; got {max_keyframes!r}')
         if lk_levels is not None and (not isinstance(lk_levels, (int, np.integer))
                                       or not 0 <= lk_levels <= 6):
             raise ValueError(f'lk_levels must be None or an int in [0, 6]; got {lk_levels!r}')
@@ -137,11 +181,13 @@ class DenseTracker:
         self.lk_window, self.channel_order = int(lk_window), channel_order
         self.blank_std = float(blank_std)
         preset = _DIS_PRESETS.get(method.split('+')[0].split('/')[0])
+        self._dis_preset = preset
         self._dis = None if preset is None else cv2.DISOpticalFlow.create(preset)
-        self._refine = method.endswith('+lk') or method == 'lk'
-        self._chain = '/prev' in method
+        self._refine_lk = method.endswith('+lk') or method == 'lk'
+        self._warp = '/prev' not in method
         self.lk_levels = lk_levels if lk_levels is not None else (
-            3 if self._dis is None else 1 if self._chain else 0)
+            2 if self._dis is None else 1 if not self._warp else 0)
+        self.max_keyframes = int(max_keyframes)
         self._next_id = 0
         self._warned = set()
         self.reset()
@@ -149,37 +195,40 @@ class DenseTracker:
     # ---------------------------------------------------------------- public
 
     def reset(self):
-        """Forget the reference and every track; the next frame starts a new sequence (new
+        """Forget the keyframes and every track; the next frame starts a new sequence (new
         ids continue from the last one: ids are never reused by one tracker)."""
-        self._ref = None              # (H, W) uint8 reference frame
-        self._region_ref = None       # (H, W) bool region in the reference frame
-        self._flow = None             # (H, W, 2) float32 flow reference -> last frame
+        self._keyframes = {}          # frame number -> _Keyframe
+        self._shape = None            # (H, W) of the sequence
+        self._region_ref = None       # (H, W) bool region at the newest keyframe
         self._last = None             # (H, W) uint8 last frame tracked
+        self._step_flow = None        # (h, w, 2) float32 DIS flow last -> current frame, a box
         self._ids = np.zeros(0, np.uint32)
-        self._uv_ref = np.zeros((0, 2), np.float32)
+        self._key = np.zeros(0, np.int64)                              # (P,) keyframe
+        self._uv_ref = np.zeros((0, 2), np.float32)                   # (P, 2) in it
         self._ref_patches = np.zeros((0, len(_OFFSETS)), np.float32)   # (P, n) zero-mean
         self._uv = np.zeros((0, 2), np.float64)
         self._born = np.zeros(0, np.int64)
         self._frame = -1
-        self._ref_frame = -1
+        self._newest_key = -1
         self._uint16_shift = None
 
     def track(self, image):
         """Track one frame; returns its :class:`TrackFrame`."""
         grey = self._to_grey(image)
         self._frame += 1
-        if self._ref is not None and grey.shape != self._ref.shape:
+        if self._shape is not None and grey.shape != self._shape:
             raise FrameSizeError(
                 f'frame {self._frame} is {grey.shape[1]} x {grey.shape[0]} pixels but the '
-                f'reference is {self._ref.shape[1]} x {self._ref.shape[0]}; call reset() to '
+                f'sequence is {self._shape[1]} x {self._shape[0]}; call reset() to '
                 f'start a new sequence at the new size')
         counts = dict(alive=0, born=0, lost=0, failed=0, left=0, reanchored=0, blank=0)
-        if float(grey.std()) < self.blank_std:
-            self._warn_once('blank', f'blank frame (grey-level std {grey.std():.2f} < '
+        spread = float(grey[::4, ::4].std())
+        if spread < self.blank_std:
+            self._warn_once('blank', f'blank frame (grey-level std {spread:.2f} < '
                             f'{self.blank_std}): no tracks in it, the state is kept')
             counts['blank'] = 1
             return self._frame_out(np.zeros(0, bool), counts)
-        if self._ref is None:
+        if self._shape is None:
             self._start(grey, counts)
         else:
             self._follow(grey, counts)
@@ -194,54 +243,101 @@ class DenseTracker:
     # ---------------------------------------------------------------- steps
 
     def _start(self, grey, counts):
-        """First frame of a sequence: it is the reference; tracks born on the region's grid."""
-        region = self._region_mask(grey.shape)
-        self._set_reference(grey, region)
-        counts['reanchored'] = 1
-        counts['born'] = self._birth(grey)
+        """First frame of a sequence: the first keyframe; tracks born on the region's grid."""
+        self._shape = grey.shape
+        self._new_keyframe(grey, np.zeros(0, bool), self._region_mask(grey.shape), counts)
 
     def _follow(self, grey, counts):
-        """Track the alive tracks from the reference into ``grey``; kill, re-anchor, birth."""
-        uv, ok_flow = self._flow_tracks(grey)
+        """Track the alive tracks into ``grey``; kill, re-anchor, birth."""
+        guess = self._predict(grey)
+        uv, zncc, ok = self._refine(grey, guess)
         inside = _inside(uv, grey.shape)
-        zncc = _patch_zncc(self._ref_patches, grey, uv)
-        passed = ok_flow & (zncc >= self.min_zncc)
+        passed = ok & (zncc >= self.min_zncc)
         if self.fb_max_px is not None:
             passed &= self._forward_backward(grey, uv) <= self.fb_max_px
         keep = inside & passed
         counts['left'] = int((~inside).sum())
         counts['failed'] = int((inside & ~passed).sum())
         counts['lost'] = int((~keep).sum())
-        median_zncc = float(np.median(zncc[keep])) if keep.any() else -1.0
-        self._ids, self._uv_ref, self._born = self._ids[keep], self._uv_ref[keep], self._born[keep]
-        self._ref_patches = self._ref_patches[keep]
+        self._ids, self._key, self._born = self._ids[keep], self._key[keep], self._born[keep]
+        self._uv_ref, self._ref_patches = self._uv_ref[keep], self._ref_patches[keep]
         self._uv = uv[keep]
-        if self._needs_reanchor(median_zncc, grey.shape):
-            region = self._carried_region(grey.shape)
-            self._set_reference(grey, region)
-            counts['reanchored'] = 1
-            counts['born'] = self._birth(grey)
+        area = self._area[keep]
+        stale = (zncc[keep] < self.reanchor_zncc) | (area < _AREA_CHANGE) | \
+            (area > 1 / _AREA_CHANGE)
+        by_count, uncovered = self._needs_keyframe(grey.shape)
+        if by_count or uncovered or stale.sum() > _STALE_SHARE * max(len(stale), 1):
+            region = self._carried_region(grey.shape) if by_count or uncovered else None
+            self._new_keyframe(grey, stale | by_count, region, counts)
 
-    def _flow_tracks(self, grey):
-        """``(uv: (P, 2) float64, ok: (P,) bool)`` of the alive tracks in ``grey``."""
-        if len(self._ids) == 0:
-            return np.zeros((0, 2)), np.zeros(0, bool)
+    def _predict(self, grey):
+        """Where the alive tracks ``(P, 2) float32`` are expected in ``grey``: moved by DIS
+        from the last frame (computed in the box around them), or where they were."""
         guess = self._uv.astype(np.float32)
-        if self._chain:
-            step = self._dis.calc(self._last, grey, None)
-            guess = guess + sample(step, guess)
-            self._flow = _compose(self._flow, step)
-        elif self._dis is not None:
-            init = self._flow if self._flow is not None else None
-            self._flow = self._dis.calc(self._ref, grey, None if init is None else init.copy())
-            guess = self._uv_ref + sample(self._flow, self._uv_ref)
-        ok = np.ones(len(guess), bool)
-        if self._refine:
-            dense = guess
-            guess, ok = self._lucas_kanade(self._ref, grey, self._uv_ref, guess)
+        if self._dis is None or len(guess) == 0:
+            return guess
+        x0, y0, x1, y1 = _box(guess, grey.shape, _FLOW_MARGIN)
+        last = np.ascontiguousarray(self._last[y0:y1, x0:x1])
+        init = None
+        if self._step_flow is not None and self._step_flow.shape[:2] == last.shape:
+            init = self._step_flow
+        else:                 # OpenCV's DIS can crash on a new size after an initial flow
+            self._dis = cv2.DISOpticalFlow.create(self._dis_preset)
+        self._step_flow = self._dis.calc(last, np.ascontiguousarray(grey[y0:y1, x0:x1]), init)
+        origin = np.float32([x0, y0])
+        return guess + sample(self._step_flow, guess - origin)
+
+    def _refine(self, grey, guess):
+        """``(uv: (P, 2) float64, zncc: (P,), ok: (P,) bool)``: each keyframe's tracks
+        refined against it, on the normalised frame (computed once, in the box around the
+        guesses)."""
+        uv = guess.astype(np.float64)
+        zncc, ok = np.zeros(len(uv)), np.ones(len(uv), bool)
+        self._area = np.ones(len(uv))
+        if len(uv) == 0:
+            return uv, zncc, ok
+        x0, y0, x1, y1 = _box(guess, grey.shape, _WARP_MARGIN + self.lk_window)
+        current = _Crop(_normalise(grey[y0:y1, x0:x1]), np.float32([x0, y0]))
+        for key in np.unique(self._key):
+            rows = np.flatnonzero(self._key == key)
+            uv[rows], zncc[rows], ok[rows] = self._refine_keyframe(
+                self._keyframes[key], current, rows, guess[rows])
+        return uv, zncc, ok & np.isfinite(uv).all(axis=1)
+
+    def _refine_keyframe(self, keyframe, current, rows, guess):
+        """Tracks ``rows`` of one keyframe: the normalised frame ``current`` (a
+        :class:`_Crop`) is warped into the keyframe by the displacement field of the
+        ``guess`` es (where the method warps), then Lucas-Kanade from the normalised
+        keyframe corrects what the field missed; the ZNCC check is taken in the warped
+        frame."""
+        ref = self._uv_ref[rows]
+        shape = keyframe.normalised.shape
+        if not self._warp:
+            image = cv2.copyMakeBorder(current.image, int(current.origin[1]), max(
+                shape[0] - int(current.origin[1]) - current.image.shape[0], 0), int(
+                current.origin[0]), max(shape[1] - int(current.origin[0])
+                                        - current.image.shape[1], 0), cv2.BORDER_REPLICATE)
+            uv, ok = guess, np.ones(len(rows), bool)
+            if self._refine_lk:
+                uv, ok = self._lucas_kanade(keyframe.normalised, image, ref, guess)
+            if self._refine_lk and self._dis is not None:
+                ok &= np.linalg.norm(uv - guess, axis=1) <= _MAX_REFINEMENT
+            return uv, _patch_zncc(self._ref_patches[rows], image, uv), ok
+        x0, y0, x1, y1 = _box(ref, shape, _WARP_MARGIN + self.lk_window)
+        origin = np.float32([x0, y0])
+        local = ref - origin
+        field = _displacement_field(local, guess - ref, (y1 - y0, x1 - x0), self.step)
+        warped = _warp(current, field, origin)
+        where, ok = local, np.ones(len(rows), bool)
+        if self._refine_lk:
+            where, ok = self._lucas_kanade(
+                np.ascontiguousarray(keyframe.normalised[y0:y1, x0:x1]), warped, local,
+                local.copy())
             if self._dis is not None:
-                ok &= np.linalg.norm(guess - dense, axis=1) <= _MAX_REFINEMENT
-        return guess.astype(np.float64), ok & np.isfinite(guess).all(axis=1)
+                ok &= np.linalg.norm(where - local, axis=1) <= _MAX_REFINEMENT
+        uv = where + origin + sample(field, where)
+        self._area[rows] = _area_ratio(field, where)
+        return uv, _patch_zncc(self._ref_patches[rows], warped, where), ok
 
     def _lucas_kanade(self, src, dst, points, guess):
         """Pyramidal LK of ``points (P, 2)`` from ``src`` to ``dst`` starting at ``guess``."""
@@ -253,52 +349,69 @@ class DenseTracker:
         return moved.reshape(-1, 2), status.ravel().astype(bool)
 
     def _forward_backward(self, grey, uv):
-        """Distance ``(P,)`` between each track's reference point and its point tracked back
-        from ``uv`` into the reference."""
+        """Distance ``(P,)`` between each track's keyframe point and its point tracked back
+        from ``uv`` into its keyframe (LK on normalised images)."""
         points = uv.astype(np.float32)
-        if self._dis is not None:
-            back = self._dis.calc(grey, self._ref, None)
-            guess = points + sample(back, points)
-        else:
-            guess = self._uv_ref.copy()
-        if self._refine:
-            guess, ok = self._lucas_kanade(grey, self._ref, points, guess)
-            guess[~ok] = np.inf
-        return np.linalg.norm(guess - self._uv_ref, axis=1)
+        back = np.full(len(uv), np.inf)
+        current = _normalise(grey)
+        for key in np.unique(self._key):
+            rows = np.flatnonzero(self._key == key)
+            moved, ok = self._lucas_kanade(current, self._keyframes[key].normalised,
+                                           points[rows], self._uv_ref[rows].copy())
+            distance = np.linalg.norm(moved - self._uv_ref[rows], axis=1)
+            back[rows] = np.where(ok, distance, np.inf)
+        return back
 
-    def _needs_reanchor(self, median_zncc, shape):
-        """Whether the current frame should become the reference."""
-        if self.reanchor_every is not None and \
-                self._frame - self._ref_frame >= self.reanchor_every:
-            return True
-        if median_zncc < self.reanchor_zncc:
-            return True
+    def _needs_keyframe(self, shape):
+        """``(by_count, uncovered)``: whether the current frame should become a keyframe for
+        every track (``reanchor_every``), and whether too much of the region is uncovered
+        (new tracks to be born)."""
+        by_count = self.reanchor_every is not None and \
+            self._frame - self._newest_key >= self.reanchor_every
         cells = self._region_cells(self._region_ref)
-        return _uncovered_share(cells, self._uv, self.step, shape) > self.reanchor_uncovered
+        uncovered = _uncovered_share(cells, self._uv, self.step, shape) > \
+            self.reanchor_uncovered
+        return by_count, uncovered
 
-    def _set_reference(self, grey, region):
-        self._ref = grey
-        self._region_ref = region
-        self._ref_frame = self._frame
-        self._flow = None
-        self._uv_ref = self._uv.astype(np.float32)
-        self._ref_patches = _centred_patches(grey, self._uv_ref)
+    def _new_keyframe(self, grey, move, region, counts):
+        """The current frame becomes a keyframe: the tracks ``move`` (and those of the
+        oldest keyframe beyond ``max_keyframes``) are re-anchored to it, keeping their ids;
+        with a ``region`` (None: no births), tracks are born on its uncovered cells."""
+        key = self._frame
+        self._keyframes[key] = _Keyframe(grey, _normalise(grey))
+        if len(self._keyframes) > self.max_keyframes:        # the one holding fewest tracks
+            older = np.array(sorted(set(self._keyframes) - {key}))
+            fewest = older[np.argmin([np.count_nonzero(self._key == k) for k in older])]
+            move = move | (self._key == fewest)
+        self._key[move] = key
+        self._uv_ref[move] = self._uv[move]
+        self._ref_patches[move] = _centred_patches(self._keyframes[key].normalised,
+                                                   self._uv_ref[move])
+        self._newest_key = key
+        counts['reanchored'] = 1
+        if region is not None:
+            self._region_ref = region
+            counts['born'] = self._birth(grey, key)
+        for old in set(self._keyframes) - set(self._key.tolist()) - {key}:
+            del self._keyframes[old]
 
-    def _birth(self, grey):
-        """New tracks on the uncovered, textured grid cells of the reference region; returns
-        how many were born."""
+    def _birth(self, grey, key):
+        """New tracks on the uncovered, textured grid cells of the region, anchored to the
+        keyframe ``key``; returns how many were born."""
         cells = self._region_cells(self._region_ref)
         if len(cells):
             cells = cells[~_covered(cells, self._uv, self.step, grey.shape)]
         patches = _centred_patches(grey, cells)
         textured = np.sqrt((patches ** 2).mean(axis=1)) >= self.min_texture
-        cells, patches = cells[textured], patches[textured]
+        cells = cells[textured]
+        patches = _centred_patches(self._keyframes[key].normalised, cells)
         n = len(cells)
         new_ids = self._next_id + np.arange(n, dtype=np.int64)
         if new_ids.size and new_ids[-1] >= 2 ** 32:
             raise OverflowError('track ids exhausted (2^32); create a new DenseTracker')
         self._next_id += n
         self._ids = np.concatenate([self._ids, new_ids.astype(np.uint32)])
+        self._key = np.concatenate([self._key, np.full(n, key, np.int64)])
         self._uv = np.concatenate([self._uv, cells.astype(np.float64)])
         self._uv_ref = np.concatenate([self._uv_ref, cells.astype(np.float32)])
         self._born = np.concatenate([self._born, np.full(n, self._frame, np.int64)])
@@ -472,12 +585,24 @@ def _cell_index(points, step, shape):
 
 
 def _covered(cells, uv, step, shape):
-    """``(G,)`` bool: which grid points have one of the tracks ``uv`` within
-    ``_COVER_RADIUS`` grid steps (``shape`` unused: kept for the callers' symmetry)."""
+    """``(G,)`` bool: which grid points ``cells (G, 2)`` (``k step + step // 2``) have one
+    of the tracks ``uv`` within ``_COVER_RADIUS`` grid steps. That radius is under a step,
+    so a track can only cover the 4 grid points around it: those are marked on the grid."""
     if len(uv) == 0 or len(cells) == 0:
         return np.zeros(len(cells), bool)
-    distance, _ = cKDTree(uv).query(cells, distance_upper_bound=_COVER_RADIUS * step)
-    return np.isfinite(distance)
+    H, W = shape
+    offset = step // 2
+    rows, cols = (H - offset - 1) // step + 1, (W - offset - 1) // step + 1
+    base = np.floor((uv - offset) / step).astype(np.int64)
+    marked = np.zeros(rows * cols, bool)
+    for dr in (0, 1):
+        for dc in (0, 1):
+            node = base + (dc, dr)
+            near = np.hypot(*(uv - (node * step + offset)).T) <= _COVER_RADIUS * step
+            near &= (node >= 0).all(axis=1) & (node[:, 0] < cols) & (node[:, 1] < rows)
+            marked[node[near, 1] * cols + node[near, 0]] = True
+    where = (cells - offset) // step
+    return marked[where[:, 1] * cols + where[:, 0]]
 
 
 def _uncovered_share(cells, uv, step, shape):
@@ -486,16 +611,80 @@ def _uncovered_share(cells, uv, step, shape):
     return 1.0 - float(_covered(cells, uv, step, shape).mean())
 
 
-def _compose(first, second):
-    """Flow ``(H, W, 2)`` of ``first`` (a -> b, None: zero) followed by ``second`` (b -> c)."""
-    if first is None:
-        return second
-    H, W = first.shape[:2]
-    grid = np.stack(np.meshgrid(np.arange(W, dtype=np.float32),
-                                np.arange(H, dtype=np.float32)), axis=-1)
-    where = grid + first
-    return first + cv2.remap(second, where[..., 0], where[..., 1], cv2.INTER_LINEAR,
-                             borderMode=cv2.BORDER_REPLICATE)
+def _box(points, shape, margin):
+    """``(x0, y0, x1, y1)`` ints, ``x1``/``y1`` exclusive: the bounding box of ``points
+    (P, 2)`` grown by ``margin`` pixels, at least ``_MIN_BOX`` pixels a side where the image
+    allows, clipped to the image."""
+    H, W = shape
+    low = np.floor(points.min(axis=0)) - margin
+    high = np.ceil(points.max(axis=0)) + margin + 1
+    grow = np.maximum(_MIN_BOX - (high - low), 0) / 2
+    low, high = low - grow, high + grow
+    x0, y0 = (int(max(v, 0)) for v in low)
+    x1, y1 = int(min(high[0], W)), int(min(high[1], H))
+    return x0, y0, max(x1, x0 + 1), max(y1, y0 + 1)
+
+
+def _displacement_field(points, moves, size, step):
+    """Dense displacement ``(h, w, 2) float32`` of a box ``size (h, w)`` from scattered
+    ``points (P, 2)`` (box pixels) that moved by ``moves (P, 2)``: splatted bilinearly onto
+    a grid of ``step`` pixels, normalised Gaussian smoothing (about 4 px), upsampled."""
+    h, w = size
+    s = int(step)
+    rows, cols = h // s + 3, w // s + 3
+    where = (points - (s - 1) / 2.0) / s + 1.0            # coarse node j sits at j s + (s-1)/2
+    base = np.floor(where).astype(np.int64)
+    frac = (where - base).astype(np.float32)
+    index, weight = [], []
+    for dr in (0, 1):
+        for dc in (0, 1):
+            weight.append((frac[:, 0] if dc else 1 - frac[:, 0])
+                          * (frac[:, 1] if dr else 1 - frac[:, 1]))
+            index.append(np.clip(base[:, 1] + dr, 0, rows - 1) * cols
+                         + np.clip(base[:, 0] + dc, 0, cols - 1))
+    index, weight = np.concatenate(index), np.concatenate(weight)
+    acc = np.stack([np.bincount(index, values, minlength=rows * cols) for values in (
+        np.tile(moves[:, 0], 4) * weight, np.tile(moves[:, 1], 4) * weight, weight)])
+    acc = acc.astype(np.float32)
+    sigma = max(1.0, _FIELD_SIGMA / s)
+    acc = cv2.GaussianBlur(acc.reshape(3, rows, cols).transpose(1, 2, 0), (0, 0), sigma)
+    coarse = acc[..., :2] / np.maximum(acc[..., 2:], 1e-6)
+    fine = cv2.resize(coarse, (cols * s, rows * s), interpolation=cv2.INTER_LINEAR)
+    return np.ascontiguousarray(fine[s:s + h, s:s + w])
+
+
+def _area_ratio(field, points, delta=2.0):
+    """``(P,)`` local area ratio ``det(I + d field / dx)`` of the displacement ``field
+    (h, w, 2)`` at ``points (P, 2)`` (central differences ``delta`` px apart)."""
+    d = np.float32(delta)
+    fx = (sample(field, points + (d, 0)) - sample(field, points - (d, 0))) / (2 * d)
+    fy = (sample(field, points + (0, d)) - sample(field, points - (0, d))) / (2 * d)
+    return (1 + fx[:, 0]) * (1 + fy[:, 1]) - fx[:, 1] * fy[:, 0]
+
+
+def _warp(crop, field, origin):
+    """The box at ``origin (x0, y0)`` of the keyframe, filled from the frame's
+    :class:`_Crop` ``crop``: ``out(x) = frame(origin + x + field(x))`` for a displacement
+    ``field (h, w, 2)`` (frame pixels)."""
+    h, w = field.shape[:2]
+    shift = origin - crop.origin
+    grid = np.stack(np.meshgrid(np.arange(w, dtype=np.float32) + shift[0],
+                                np.arange(h, dtype=np.float32) + shift[1]), axis=-1)
+    where = grid + field
+    return cv2.remap(crop.image, where[..., 0], where[..., 1], cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE)
+
+
+def _normalise(grey, sigma=_NORM_SIGMA):
+    """``grey (h, w)`` with its local mean removed and its local contrast equalised
+    (Gaussian windows of ``sigma`` px), as uint8 around 128 (40 grey levels per local
+    standard deviation): Lucas-Kanade on it is blind to shading gain and offset."""
+    image = grey.astype(np.float32)
+    size = (4 * int(round(sigma)) + 1,) * 2       # stack blur: about a Gaussian of sigma
+    detail = image - cv2.stackBlur(image, size)
+    spread = cv2.stackBlur(detail * detail, size)
+    out = detail * (40.0 / (np.sqrt(spread) + 1.0)) + 128.0
+    return np.clip(out, 0, 255).astype(np.uint8)
 
 
 def _occupied_mask(uv, step, shape, close_cells=9):
