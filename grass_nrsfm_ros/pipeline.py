@@ -62,8 +62,8 @@ class LivePipeline:
             waiting = self.refinement.waiting(self.windowing.sequence)
         windows = self.windowing.push(frame, close_early=self._surprised, waiting=waiting)
         self._surprised = tracked.surprising
+        self.latencies.append(time.perf_counter() - started)   # the tracking, not a solve
         self._submit(windows)
-        self.latencies.append(time.perf_counter() - started)
         return (self._scaled(tracked.result),)
 
     def flush(self):
