@@ -242,6 +242,70 @@ def grassmann_table(doc):
     return lines
 
 
+def frontend_table(doc):
+    t = doc.get('targets', {})
+    lines = ['| sequence | method | step | tracks in frame 0 | error median / p95 px | '
+             'frame-0 tracks alive at the end (where visible) | ms per frame (1 thread) | '
+             'e3D tracked / perfect |', '|---|---|---|---|---|---|---|---|']
+    for r in doc['rows']:
+        ms = r.get('ms_per_frame_1_thread', r.get('ms_per_frame'))
+        ratio = r.get('e3d_ratio')
+        lines.append(f"| {r['sequence']} | {r['method']} | {r['step']} | {r['tracks_frame0']} | "
+                     f"{fmt(r['error_median_px'], 2)} / {fmt(r['error_p95_px'], 2)} | "
+                     f"{100 * r['alive_last_among_visible_last']:.0f} % | {fmt(ms, 1)} | "
+                     f'{fmt(ratio, 3)} |')
+    if t:
+        lines += ['', f"Bars: face error {t['face_error_median_px']} / {t['face_error_p95_px']} "
+                  f"px, sheet {t['sheet_error_median_px']} / {t['sheet_error_p95_px']} px, "
+                  f"alive {100 * t['alive_last_among_visible_last']:.0f} %, "
+                  f"{t['ms_per_frame_5000_tracks']} ms at 5,000 tracks, e3D ratio "
+                  f"{t['e3d_ratio']}."]
+    return lines
+
+
+def camera_pipeline_table(doc):
+    lines = ['| run | frames back | image -> points p50 / p95 ms |', '|---|---|---|']
+    for key, run in doc.items():
+        if not isinstance(run, dict) or 'environment' not in run:
+            continue
+        lat = run.get('image_to_points_ms', {})
+        lines.append(f"| {key} ({run['size'][1]} x {run['size'][0]}) | {run['points_back']} / "
+                     f"{run['sent']} | {fmt(lat.get('p50'), 0)} / {fmt(lat.get('p95'), 0)} |")
+    return lines
+
+
+def kinect_paper_table(doc):
+    gt = doc.get('ground_truth', {})
+    lines = ['| tracks (frame 1 / complete / total) | ms per frame | reconstruction | e3D |',
+             '|---|---|---|---|']
+    cells = f"{doc['tracks_frame1']} / {doc['tracks_complete']} / {doc['tracks_total']}"
+    for name, value in sorted((gt.get('e3d') or {}).items()):
+        lines.append(f"| {cells} | {fmt(doc['ms_per_frame'], 0)} | {name} | {fmt(value)} |")
+    return lines
+
+
+def perspective_table(doc):
+    lines = ['| sequence | F x P | orthographic projections | first solve | perspective | '
+             'rigid | perspective / orthographic |', '|---|---|---|---|---|---|---|']
+    for r in doc['rows']:
+        lines.append(f"| {r['sequence']} | {r.get('F', '-')} x {r.get('P', '-')} | "
+                     f"{fmt(r.get('e3d_orthographic_projection'))} | "
+                     f"{fmt(r.get('e3d_first_solve_S'))} | {fmt(r.get('e3d_perspective'))} | "
+                     f"{fmt(r.get('e3d_rigid'))} | {fmt(r.get('ratio_to_orthographic'), 3)} |")
+    return lines
+
+
+def sheets_table(doc):
+    options = list(doc['rows'][0]['ratios'])
+    lines = ['| sheet | F x P | rigid | ' + ' | '.join(f'{o} (/ rigid)' for o in options) + ' |',
+             '|---|---|---|' + '---|' * len(options)]
+    for r in doc['rows']:
+        lines.append(f"| {r['sequence']} | {r['F']} x {r['P']} | {fmt(r['rigid'])} | "
+                     + ' | '.join(f"{fmt(r[o])} ({fmt(r['ratios'][o], 2)})" for o in options)
+                     + ' |')
+    return lines
+
+
 #: (suite, heading, what the table shows, the table's lines from the suite's JSON)
 SECTIONS = (('accuracy', 'Accuracy', 'e3D; "A": Akhter\'s metric, the one of the published mocap '
              'numbers; PTA K chosen against ground truth', accuracy_table),
@@ -255,7 +319,18 @@ SECTIONS = (('accuracy', 'Accuracy', 'e3D; "A": Akhter\'s metric, the one of the
             ('rotations', 'Rotations and shape norm', "Akhter's metric on mocap; Dai's vs Organic "
              "Priors' rotations, plain vs OP's weighted partial norm; records 0500, 0501",
              rotations_table),
-            ('grassmann', 'Grassmann branches probed', 'Record 0502', grassmann_table))
+            ('grassmann', 'Grassmann branches probed', 'Record 0502', grassmann_table),
+            ('frontend', 'Camera front end', 'Rendered pinhole sequences, 640 x 480, tracks '
+             'against the true projections (`python -m bench.frontend`)', frontend_table),
+            ('camera_pipeline', 'Images to points over DDS', 'Images at 30 Hz -> tracker node '
+             '-> reconstruction node (`python -m bench.camera_pipeline`)', camera_pipeline_table),
+            ('kinect_paper', "The paper's kinect_paper sequence", 'From its 191 images; e3D on '
+             'the ground truth located in it, record 0622 (`python -m bench.kinect_paper`)',
+             kinect_paper_table),
+            ('perspective', 'Perspective', 'The projective-depth iteration; e3D with a '
+             'per-frame scale (`python -m bench.perspective`)', perspective_table),
+            ('sheets', 'Sheets', 'e3D and its ratio to rigid factorisation per option '
+             '(`python -m bench.sheets`)', sheets_table))
 
 
 def plot_links(doc, results, page_dir):
@@ -278,7 +353,7 @@ def sections(results):
     """``[(heading, detail, make, doc)]`` of the suites with rows in ``results``."""
     found = [(name, detail, make, load(results, suite))
              for suite, name, detail, make in SECTIONS]
-    return [s for s in found if s[3] and s[3].get('rows')]
+    return [s for s in found if s[3] and (s[3].get('rows') or 'rows' not in s[3])]
 
 
 def markdown(results, page_dir='.'):
@@ -287,9 +362,11 @@ def markdown(results, page_dir='.'):
     present = sections(results)
     out = ['Contents: ' + ', '.join(f'[{name}](#{anchor(name)})' for name, *_ in present), '']
     for name, detail, make, doc in present:
-        env = doc.get('environment', {})
+        env = doc.get('environment') or next(
+            (v['environment'] for v in doc.values() if isinstance(v, dict)
+             and 'environment' in v), {})
         out += [f'## {name}', '', (f'{detail}. ' if detail else '')
-                + f'From the {doc["mode"]} run of {env.get("date", "?")}, commit '
+                + f'From the {doc.get("mode", "one")} run of {env.get("date", "?")}, commit '
                 f'{env.get("git", "?")}, {env.get("cpus", "?")} CPUs.', '']
         out += make(doc) + [''] + plot_links(doc, results, page_dir)
     return '\n'.join(out).rstrip('\n') + '\n'
