@@ -14,9 +14,9 @@ against it in every frame, so its error does not grow frame by frame:
 3. checks: a ZNCC of each track's patch against its keyframe patch, taken in the warped frame
    (optionally a forward-backward check); occlusion shows up as a failed check.
 
-A track whose patch has changed (ZNCC below ``reanchor_zncc``) or whose local area has
-changed by more than 0.7x / 1.4x since its keyframe is *stale*: when enough tracks are stale,
-the frame becomes a keyframe and they are re-anchored to it, keeping their ids. When too much
+A track whose patch has changed (ZNCC below ``reanchor_zncc``) is *stale*: when enough
+tracks are stale, the frame becomes a keyframe and they (with ``max_keyframes`` 1, the
+default: every track) are re-anchored to it, keeping their ids. When too much
 of the region has no track, the frame becomes a keyframe and new tracks are born on the
 region's uncovered grid cells. A track dies when it leaves the image or fails a check. Ids are
 never reused within a sequence (until :meth:`reset`).
@@ -61,13 +61,12 @@ _PATCH_RADIUS = 5                  # photometric check and texture test on 11 x 
 _MAX_REFINEMENT = 2.0              # px: prediction and its LK refinement disagreeing more: failed
 _COVER_RADIUS = 0.75               # grid steps: a grid point with no track this near is uncovered
 _BORDER = 2.0                      # a track closer than this to the image edge has left it
-_AREA_CHANGE = 0.7                 # area ratio to its keyframe below this (or above 1 / this):
-#                                    the track is stale (re-anchored at the next keyframe)
 _STALE_SHARE = 0.02                # a new keyframe when more of the tracks than this are stale
 _FLOW_MARGIN = 24                  # px around the tracks where DIS last -> current runs
 _WARP_MARGIN = 8                   # px around a keyframe's tracks warped (plus the LK window)
 _MIN_BOX = 48                      # px: the smallest box DIS and the warp run in
 _FIELD_SIGMA = 4.0                 # px: smoothing of the displacement field of the tracks
+_REMAP_ROWS = 32000                # OpenCV's remap takes maps of under 2^15 rows
 _NORM_SIGMA = 4.0                  # px: windows of the local normalisation before LK
 
 
@@ -127,13 +126,14 @@ class DenseTracker:
     Checks: ``min_zncc`` (a track whose 11 x 11 normalised patch correlates less than this
     with its keyframe patch, in the warped frame, dies), ``fb_max_px`` (forward-backward
     distance above which a track dies; None: no forward-backward check). Keyframes: a track
-    is stale when its ZNCC is below ``reanchor_zncc`` or its area changed 0.7x / 1.4x; the
-    frame becomes a keyframe (stale tracks re-anchored to it) when more than 2 % of the
-    tracks are stale, when more than ``reanchor_uncovered`` of the region's grid cells hold
-    no track (a grid point is covered by a track within 0.75 steps; then tracks are born),
-    or every ``reanchor_every`` frames (None: never by count; then every track is
-    re-anchored and tracks are born). At most ``max_keyframes`` are kept: beyond, the
-    tracks of the one holding fewest are re-anchored to the new one. Births only on cells
+    is stale when its ZNCC is below ``reanchor_zncc``; the frame becomes a keyframe (stale
+    tracks re-anchored to it) when more than 2 % of the tracks are stale, when more than
+    ``reanchor_uncovered`` of the region's grid cells hold no track (a grid point is
+    covered by a track within 0.75 steps; then tracks are born), or every
+    ``reanchor_every`` frames (None: never by count; then every track is re-anchored and
+    tracks are born). At most ``max_keyframes`` are kept: beyond, the tracks of the one
+    holding fewest are re-anchored to the new one (1: every track follows the newest
+    keyframe). Births only on cells
     whose patch has a grey-level standard deviation of at least ``min_texture``.
     ``lk_window`` (odd) and ``lk_levels`` (pyramid levels; None: 0 for 'dis-*+lk', 1 for
     '/prev+lk', 2 for 'lk') set the Lucas-Kanade refinement, which fails a track when it
@@ -144,8 +144,8 @@ class DenseTracker:
 
     def __init__(self, step=4, region=None, method=DEFAULT_METHOD, *, K=None, min_zncc=0.8,
                  fb_max_px=None, reanchor_zncc=0.85, reanchor_uncovered=0.1,
-                 reanchor_every=None, min_texture=2.0, lk_window=11, lk_levels=None,
-                 channel_order='rgb', blank_std=2.0, max_keyframes=4):
+                 reanchor_every=None, min_texture=2.0, lk_window=9, lk_levels=None,
+                 channel_order='rgb', blank_std=2.0, max_keyframes=1):
         if isinstance(step, bool) or not isinstance(step, (int, np.integer)) or step < 1:
             raise ValueError(f'step must be an int >= 1 pixel; got {step!r}')
         if method not in METHODS:
@@ -262,9 +262,7 @@ class DenseTracker:
         self._ids, self._key, self._born = self._ids[keep], self._key[keep], self._born[keep]
         self._uv_ref, self._ref_patches = self._uv_ref[keep], self._ref_patches[keep]
         self._uv = uv[keep]
-        area = self._area[keep]
-        stale = (zncc[keep] < self.reanchor_zncc) | (area < _AREA_CHANGE) | \
-            (area > 1 / _AREA_CHANGE)
+        stale = zncc[keep] < self.reanchor_zncc
         by_count, uncovered = self._needs_keyframe(grey.shape)
         if by_count or uncovered or stale.sum() > _STALE_SHARE * max(len(stale), 1):
             region = self._carried_region(grey.shape) if by_count or uncovered else None
@@ -293,7 +291,6 @@ class DenseTracker:
         guesses)."""
         uv = guess.astype(np.float64)
         zncc, ok = np.zeros(len(uv)), np.ones(len(uv), bool)
-        self._area = np.ones(len(uv))
         if len(uv) == 0:
             return uv, zncc, ok
         x0, y0, x1, y1 = _box(guess, grey.shape, _WARP_MARGIN + self.lk_window)
@@ -336,7 +333,6 @@ class DenseTracker:
             if self._dis is not None:
                 ok &= np.linalg.norm(where - local, axis=1) <= _MAX_REFINEMENT
         uv = where + origin + sample(field, where)
-        self._area[rows] = _area_ratio(field, where)
         return uv, _patch_zncc(self._ref_patches[rows], warped, where), ok
 
     def _lucas_kanade(self, src, dst, points, guess):
@@ -550,9 +546,15 @@ _OFFSETS = np.stack(np.meshgrid(np.arange(-_PATCH_RADIUS, _PATCH_RADIUS + 1, 2),
 
 def _centred_patches(grey, points):
     """``(P, n)`` float32 zero-mean bilinear patches of ``grey`` around ``points (P, 2)``
-    (11 x 11 pixels sampled every 2)."""
-    where = points.astype(np.float32)[:, None, :] + _OFFSETS[None]   # (P, n, 2)
-    patches = sample(grey, where.reshape(-1, 2)).reshape(len(points), len(_OFFSETS))
+    (11 x 11 pixels sampled every 2; one row of the remap maps per point, in chunks that
+    OpenCV's remap takes)."""
+    points = points.astype(np.float32)
+    patches = np.zeros((len(points), len(_OFFSETS)), np.float32)
+    for start in range(0, len(points), _REMAP_ROWS):
+        chunk = points[start:start + _REMAP_ROWS]
+        patches[start:start + len(chunk)] = cv2.remap(
+            grey, chunk[:, :1] + _OFFSETS[None, :, 0], chunk[:, 1:] + _OFFSETS[None, :, 1],
+            cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     return patches - patches.mean(axis=1, keepdims=True)
 
 
@@ -651,15 +653,6 @@ def _displacement_field(points, moves, size, step):
     coarse = acc[..., :2] / np.maximum(acc[..., 2:], 1e-6)
     fine = cv2.resize(coarse, (cols * s, rows * s), interpolation=cv2.INTER_LINEAR)
     return np.ascontiguousarray(fine[s:s + h, s:s + w])
-
-
-def _area_ratio(field, points, delta=2.0):
-    """``(P,)`` local area ratio ``det(I + d field / dx)`` of the displacement ``field
-    (h, w, 2)`` at ``points (P, 2)`` (central differences ``delta`` px apart)."""
-    d = np.float32(delta)
-    fx = (sample(field, points + (d, 0)) - sample(field, points - (d, 0))) / (2 * d)
-    fy = (sample(field, points + (0, d)) - sample(field, points - (0, d))) / (2 * d)
-    return (1 + fx[:, 0]) * (1 + fy[:, 1]) - fx[:, 1] * fy[:, 0]
 
 
 def _warp(crop, field, origin):
