@@ -1,10 +1,10 @@
 """Front end: dense tracks from rendered image sequences against their ground truth.
 
-``python -m bench.frontend [--smoke] [--frames F] [--methods M1,M2] [--step N]`` renders a
-Surrey-model face (where the model is present) and a bending sheet (640 x 480, f = 620 px,
-100 frames, sensor noise 1 grey level, 30 % Lambert shading), tracks them with
-:class:`grass_nrsfm_ros.frontend.DenseTracker` (region: the frame-0 mask of the surface) and
-measures, per sequence and method:
+``python -m bench.frontend [--smoke] [--frames F] [--methods M1,M2] [--step N]
+[--options JSON]`` renders a Surrey-model face (where the model is present) and a bending
+sheet (640 x 480, f = 620 px, 100 frames, sensor noise 1 grey level, 30 % Lambert shading),
+tracks them with :class:`grass_nrsfm_ros.frontend.DenseTracker` (region: the frame-0 mask of
+the surface; ``--options``: its keyword arguments) and measures, per sequence and method:
 
 * tracking error against the true projection of the surface point each track was born on,
   over every (frame, track) pair where the point is visible: median / p95 / max px;
@@ -20,6 +20,7 @@ Figures go to stdout and ``bench/results/frontend.json`` (``--smoke``: 12 frames
 method, ``bench/results/smoke/``).
 """
 import argparse
+import json
 import os
 import time
 
@@ -153,13 +154,13 @@ def density(image, mask):
                                       .counts['born']) for step in (2, 1)}
 
 
-def timing(images, mask, method, target=5000):
+def timing(images, mask, method, target=5000, options=None):
     """Milliseconds per frame on one OpenCV thread with about ``target`` tracks."""
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)
     try:
         step = max(1, int(round(np.sqrt(mask.sum() / target))))
-        frames, ms = run_tracker(images, method, step, mask)
+        frames, ms = run_tracker(images, method, step, mask, **(options or {}))
     finally:
         cv2.setNumThreads(threads)
     return {'timing_step': step, 'timing_tracks_mean': float(np.mean(
@@ -167,7 +168,10 @@ def timing(images, mask, method, target=5000):
         'load_average_1min': os.getloadavg()[0]}
 
 
-def run(mode, methods=None, step=4, n_frames=None):
+def run(mode, methods=None, step=4, n_frames=None, options=None):
+    """Rows of figures per sequence and method; ``options``: DenseTracker keyword
+    arguments (None: its defaults)."""
+    options = options or {}
     methods = methods or mode.pick([DEFAULT_METHOD], [DEFAULT_METHOD], list(METHODS))
     n_frames = n_frames or mode.pick(12, 100, 100)
     rows, sequences = [], {}
@@ -181,10 +185,11 @@ def run(mode, methods=None, step=4, n_frames=None):
             sequences[name].update(density(images[0], mask))
         for method in methods:
             common.log(f'frontend: {name} {method} step {step}')
-            frames, ms = run_tracker(images, method, step, mask)
-            row = {'sequence': name, 'method': method, 'step': step, 'ms_per_frame': ms}
+            frames, ms = run_tracker(images, method, step, mask, **options)
+            row = {'sequence': name, 'method': method, 'step': step, 'ms_per_frame': ms,
+                   'options': options}
             row.update(evaluate(scene, frames))
-            row.update(timing(images, mask, method))
+            row.update(timing(images, mask, method, options=options))
             rows.append(row)
             print(summary(row), flush=True)
     return {'rows': rows, 'sequences': sequences, 'targets': TARGETS}
@@ -214,6 +219,9 @@ def main(argv=None):
                         help=f'comma-separated, of {", ".join(METHODS)} (default: '
                         f'{DEFAULT_METHOD}; "all": every one)')
     parser.add_argument('--step', type=int, default=4, help='grid step in pixels')
+    parser.add_argument('--options', type=json.loads, default=None,
+                        help='DenseTracker keyword arguments as JSON, e.g. '
+                        '\'{"min_zncc": 0.75}\'')
     parser.add_argument('--out', default=None, help='results folder')
     args = parser.parse_args(argv)
     methods = None
@@ -223,7 +231,7 @@ def main(argv=None):
         if unknown:
             parser.error(f'unknown methods {sorted(unknown)}; choose from {METHODS}')
     mode = common.Mode('smoke' if args.smoke else 'quick', out=args.out)
-    payload = run(mode, methods, args.step, args.frames)
+    payload = run(mode, methods, args.step, args.frames, args.options)
     path = common.write_result(mode, 'frontend', payload)
     print(f'wrote {path}')
 

@@ -567,8 +567,8 @@ def _patch_zncc(ref_patches, grey, points):
     b = _centred_patches(grey, points)
     a = ref_patches
     n = a.shape[1]
-    denom = np.sqrt(((a * a).sum(1) + n) * ((b * b).sum(1) + n))
-    return (a * b).sum(1) / denom
+    denom = np.sqrt((np.einsum('ij,ij->i', a, a) + n) * (np.einsum('ij,ij->i', b, b) + n))
+    return np.einsum('ij,ij->i', a, b) / denom
 
 
 def _inside(uv, shape):
