@@ -67,15 +67,18 @@ _WARP_MARGIN = 8                   # px around a keyframe's tracks warped (plus 
 _MIN_BOX = 48                      # px: the smallest box DIS and the warp run in
 _FIELD_SIGMA = 4.0                 # px: smoothing of the displacement field of the tracks
 _REMAP_ROWS = 32000                # OpenCV's remap takes maps of under 2^15 rows
+_CHECK_SIGMA = 1.0                 # px: blur of both sides of the ZNCC check
 _NORM_SIGMA = 4.0                  # px: windows of the local normalisation before LK
 
 
 @dataclass(frozen=True, eq=False)
 class _Keyframe:
-    """A frame tracks are anchored to: ``grey (H, W) uint8`` and its :func:`_normalise`."""
+    """A frame tracks are anchored to: ``grey (H, W) uint8``, its :func:`_normalise` and
+    that :func:`_smoothed` (where the ZNCC check samples)."""
 
     grey: np.ndarray
     normalised: np.ndarray
+    smoothed: np.ndarray
 
 
 @dataclass(frozen=True, eq=False)
@@ -319,7 +322,7 @@ class DenseTracker:
                 uv, ok = self._lucas_kanade(keyframe.normalised, image, ref, guess)
             if self._refine_lk and self._dis is not None:
                 ok &= np.linalg.norm(uv - guess, axis=1) <= _MAX_REFINEMENT
-            return uv, _patch_zncc(self._ref_patches[rows], image, uv), ok
+            return uv, _patch_zncc(self._ref_patches[rows], _smoothed(image), uv), ok
         x0, y0, x1, y1 = _box(ref, shape, _WARP_MARGIN + self.lk_window)
         origin = np.float32([x0, y0])
         local = ref - origin
@@ -333,7 +336,7 @@ class DenseTracker:
             if self._dis is not None:
                 ok &= np.linalg.norm(where - local, axis=1) <= _MAX_REFINEMENT
         uv = where + origin + sample(field, where)
-        return uv, _patch_zncc(self._ref_patches[rows], warped, where), ok
+        return uv, _patch_zncc(self._ref_patches[rows], _smoothed(warped), where), ok
 
     def _lucas_kanade(self, src, dst, points, guess):
         """Pyramidal LK of ``points (P, 2)`` from ``src`` to ``dst`` starting at ``guess``."""
@@ -374,14 +377,15 @@ class DenseTracker:
         oldest keyframe beyond ``max_keyframes``) are re-anchored to it, keeping their ids;
         with a ``region`` (None: no births), tracks are born on its uncovered cells."""
         key = self._frame
-        self._keyframes[key] = _Keyframe(grey, _normalise(grey))
+        normalised = _normalise(grey)
+        self._keyframes[key] = _Keyframe(grey, normalised, _smoothed(normalised))
         if len(self._keyframes) > self.max_keyframes:        # the one holding fewest tracks
             older = np.array(sorted(set(self._keyframes) - {key}))
             fewest = older[np.argmin([np.count_nonzero(self._key == k) for k in older])]
             move = move | (self._key == fewest)
         self._key[move] = key
         self._uv_ref[move] = self._uv[move]
-        self._ref_patches[move] = _centred_patches(self._keyframes[key].normalised,
+        self._ref_patches[move] = _centred_patches(self._keyframes[key].smoothed,
                                                    self._uv_ref[move])
         self._newest_key = key
         counts['reanchored'] = 1
@@ -400,7 +404,7 @@ class DenseTracker:
         patches = _centred_patches(grey, cells)
         textured = np.sqrt((patches ** 2).mean(axis=1)) >= self.min_texture
         cells = cells[textured]
-        patches = _centred_patches(self._keyframes[key].normalised, cells)
+        patches = _centred_patches(self._keyframes[key].smoothed, cells)
         n = len(cells)
         new_ids = self._next_id + np.arange(n, dtype=np.int64)
         if new_ids.size and new_ids[-1] >= 2 ** 32:
@@ -653,6 +657,12 @@ def _displacement_field(points, moves, size, step):
     coarse = acc[..., :2] / np.maximum(acc[..., 2:], 1e-6)
     fine = cv2.resize(coarse, (cols * s, rows * s), interpolation=cv2.INTER_LINEAR)
     return np.ascontiguousarray(fine[s:s + h, s:s + w])
+
+
+def _smoothed(image):
+    """``image`` blurred by ``_CHECK_SIGMA``: the ZNCC check compares these, so that the
+    detail a foreshortened view loses does not fail a track."""
+    return cv2.GaussianBlur(image, (0, 0), _CHECK_SIGMA)
 
 
 def _warp(crop, field, origin):
