@@ -55,6 +55,24 @@ def test_translation_tracked_to_a_tenth_of_a_pixel(method, median, p95):
     assert (out.age[old] == 12).all() and (out.age[~old] < 12).all()
 
 
+def test_shading_gain_and_offset_do_not_move_tracks():
+    """A brightness gain that grows to 1.3x across the image and an offset, as shading
+    changes when a surface turns: the tracks stay within a tenth of a pixel."""
+    base = texture()
+    ramp = np.linspace(0.0, 1.0, W, dtype=np.float32)[None, :]
+    tracker = DenseTracker(step=8)
+    first = tracker.track(shifted(base, 0, 0))
+    for k in range(1, 9):
+        lit = shifted(base, 0.7 * k, 0.4 * k) * (1 + 0.3 * k / 8 * ramp) + 2 * k
+        out = tracker.track(np.clip(lit, 0, 255).astype(np.uint8))
+    start = by_id(first)
+    old = np.isin(out.ids, first.ids)
+    truth = np.array([start[i] for i in out.ids[old].tolist()]) - (5.6, 3.2)
+    err = np.linalg.norm(out.uv[old] - truth, axis=1)
+    assert old.sum() > 0.9 * len(first.ids)
+    assert np.median(err) < 0.1 and np.percentile(err, 95) < 0.25
+
+
 def test_tracks_leave_the_image_die_and_new_ones_are_born_with_new_ids():
     base = texture(size=(400, 900))
     tracker = DenseTracker(step=8, method='dis-fast+lk')
@@ -251,8 +269,8 @@ def test_rendered_sheet_is_tracked_within_bounds(sheet):
     seen = truth.visible[-1, col]
     err = np.linalg.norm(tracked[seen] - truth.uv[-1, col[seen]], axis=1)
     assert len(first.ids) > 500
-    assert np.isin(first.ids[truth.visible[-1]], last.ids).mean() > 0.6
-    assert np.median(err) < 0.35 and np.percentile(err, 95) < 1.8
+    assert np.isin(first.ids[truth.visible[-1]], last.ids).mean() > 0.8
+    assert np.median(err) < 0.2 and np.percentile(err, 95) < 1.2
 
 
 def test_surface_leaving_the_view_kills_its_tracks_and_new_ones_are_born():
