@@ -67,6 +67,7 @@ _WARP_MARGIN = 8                   # px around a keyframe's tracks warped (plus 
 _MIN_BOX = 48                      # px: the smallest box DIS and the warp run in
 _FIELD_SIGMA = 4.0                 # px: smoothing of the displacement field of the tracks
 _REMAP_ROWS = 32000                # OpenCV's remap takes maps of under 2^15 rows
+_INVERSE_STEPS = 3                 # fixed-point steps inverting the field
 _CHECK_SIGMA = 1.0                 # px: blur of both sides of the ZNCC check
 _NORM_SIGMA = 4.0                  # px: windows of the local normalisation before LK
 
@@ -336,7 +337,27 @@ class DenseTracker:
             if self._dis is not None:
                 ok &= np.linalg.norm(where - local, axis=1) <= _MAX_REFINEMENT
         uv = where + origin + sample(field, where)
-        return uv, _patch_zncc(self._ref_patches[rows], _smoothed(warped), where), ok
+        zncc = _patch_zncc(self._ref_patches[rows], _smoothed(warped), where)
+        if self._refine_lk:
+            back, both = self._refine_in_frame(keyframe, current, ref, uv.astype(np.float32))
+            uv = np.where(both[:, None], 0.5 * (uv + back), uv)
+        return uv, zncc, ok
+
+    def _refine_in_frame(self, keyframe, current, ref, guess):
+        """The same tracks measured the other way round: the normalised keyframe warped
+        into the frame's box by the field from the ``guess`` es back to ``ref``, then LK
+        from it to the normalised frame ``current``; returns ``(uv: (P, 2), ok: (P,))``.
+        The two ways err in opposite directions where the view is foreshortened or
+        stretched against the keyframe, so the tracker takes their mean."""
+        local = guess - current.origin
+        field = _displacement_field(local, ref - guess, current.image.shape, self.step)
+        warped = _warp(_Crop(keyframe.normalised, np.float32([0, 0])), field, current.origin)
+        source = local
+        for _ in range(_INVERSE_STEPS):       # where the warped keyframe shows each ``ref``
+            source = ref - current.origin - sample(field, source)
+        moved, ok = self._lucas_kanade(warped, current.image, source, local.copy())
+        ok &= np.linalg.norm(moved - local, axis=1) <= _MAX_REFINEMENT
+        return moved + current.origin, ok
 
     def _lucas_kanade(self, src, dst, points, guess):
         """Pyramidal LK of ``points (P, 2)`` from ``src`` to ``dst`` starting at ``guess``."""
