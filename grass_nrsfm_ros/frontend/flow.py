@@ -147,7 +147,7 @@ class DenseTracker:
     """
 
     def __init__(self, step=4, region=None, method=DEFAULT_METHOD, *, K=None, min_zncc=0.8,
-                 fb_max_px=None, reanchor_zncc=0.85, reanchor_uncovered=0.1,
+                 fb_max_px=None, reanchor_zncc=0.88, reanchor_uncovered=0.1,
                  reanchor_every=None, min_texture=2.0, lk_window=9, lk_levels=None,
                  channel_order='rgb', blank_std=2.0, max_keyframes=1):
         if isinstance(step, bool) or not isinstance(step, (int, np.integer)) or step < 1:
