@@ -67,6 +67,8 @@ _WARP_MARGIN = 8                   # px around a keyframe's tracks warped (plus 
 _MIN_BOX = 48                      # px: the smallest box DIS and the warp run in
 _FIELD_SIGMA = 4.0                 # px: smoothing of the displacement field of the tracks
 _REMAP_ROWS = 32000                # OpenCV's remap takes maps of under 2^15 rows
+_LK_ITERATIONS = 5                 # LK stops after this many steps, or a step under:
+_LK_EPS = 0.03                     # px
 _INVERSE_STEPS = 3                 # fixed-point steps inverting the field
 _CHECK_SIGMA = 1.0                 # px: blur of both sides of the ZNCC check
 _NORM_SIGMA = 4.0                  # px: windows of the local normalisation before LK
@@ -364,7 +366,7 @@ class DenseTracker:
         moved, status, _ = cv2.calcOpticalFlowPyrLK(
             src, dst, points.reshape(-1, 1, 2), guess.reshape(-1, 1, 2).copy(),
             winSize=(self.lk_window, self.lk_window), maxLevel=self.lk_levels,
-            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 10, 0.01),
+            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, _LK_ITERATIONS, _LK_EPS),
             flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
         return moved.reshape(-1, 2), status.ravel().astype(bool)
 
