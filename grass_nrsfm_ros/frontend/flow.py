@@ -40,6 +40,7 @@ saturated or flat) gives no tracks, warns once and keeps the state, so tracking 
 next good frame.
 """
 from dataclasses import dataclass, field
+from functools import partial
 import warnings
 
 import cv2
@@ -139,44 +140,20 @@ class DenseTracker:
     ``reanchor_every`` frames (None: never by count; then every track is re-anchored and
     tracks are born). At most ``max_keyframes`` are kept: beyond, the tracks of the one
     holding fewest are re-anchored to the new one (1: every track follows the newest
-    keyframe). Births only on cells
-    whose patch has a grey-level standard deviation of at least ``min_texture``.
+    keyframe). Births only on cells whose patch's grey levels vary by ``min_texture`` or more.
     ``lk_window`` (odd) and ``lk_levels`` (pyramid levels; None: 0 for 'dis-*+lk', 1 for
     '/prev+lk', 2 for 'lk') set the Lucas-Kanade refinement, which fails a track when it
     moves it more than 2 px from the DIS prediction; ``channel_order`` of colour frames;
-    ``blank_std``: a frame whose grey levels vary less than this is blank. Why these
-    defaults: docs/decisions/0600.
+    ``blank_std``: a frame whose grey levels vary less than this is blank. Why: record 0600.
     """
 
     def __init__(self, step=4, region=None, method=DEFAULT_METHOD, *, K=None, min_zncc=0.8,
                  fb_max_px=None, reanchor_zncc=0.88, reanchor_uncovered=0.1,
                  reanchor_every=None, min_texture=2.0, lk_window=9, lk_levels=None,
                  channel_order='rgb', blank_std=2.0, max_keyframes=1):
-        if isinstance(step, bool) or not isinstance(step, (int, np.integer)) or step < 1:
-            raise ValueError(f'step must be an int >= 1 pixel; got {step!r}')
-        if method not in METHODS:
-            raise ValueError(f'unknown method {method!r}; choose from {METHODS}')
-        if channel_order not in ('rgb', 'bgr'):
-            raise ValueError(f"channel_order must be 'rgb' or 'bgr'; got {channel_order!r}")
-        _check_range('min_zncc', min_zncc, -1.0, 1.0)
-        _check_range('reanchor_zncc', reanchor_zncc, -1.0, 1.0)
-        _check_range('reanchor_uncovered', reanchor_uncovered, 0.0, 1.0)
-        _check_range('min_texture', min_texture, 0.0, 255.0)
-        _check_range('blank_std', blank_std, 0.0, 255.0)
-        if fb_max_px is not None:
-            _check_range('fb_max_px', fb_max_px, 0.0, np.inf)
-        if reanchor_every is not None and (not isinstance(reanchor_every, (int, np.integer))
-                                           or reanchor_every < 1):
-            raise ValueError(f'reanchor_every must be None or an int >= 1; got '
-                             f'{reanchor_every!r}')
-        if not isinstance(lk_window, (int, np.integer)) or lk_window < 3 or lk_window % 2 == 0:
-            raise ValueError(f'lk_window must be an odd int >= 3; got {lk_window!r}')
-        if isinstance(max_keyframes, bool) or not isinstance(max_keyframes, (int, np.integer)) \
-                or max_keyframes < 1:
-            raise ValueError(f'max_keyframes must be an int >= 1; got {max_keyframes!r}')
-        if lk_levels is not None and (not isinstance(lk_levels, (int, np.integer))
-                                      or not 0 <= lk_levels <= 6):
-            raise ValueError(f'lk_levels must be None or an int in [0, 6]; got {lk_levels!r}')
+        _check_parameters(step, method, channel_order, min_zncc, reanchor_zncc,
+                          reanchor_uncovered, min_texture, blank_std, fb_max_px, reanchor_every,
+                          lk_window, max_keyframes, lk_levels)
         self.step = int(step)
         self.method = method
         self.region = _validate_region(region)
@@ -194,6 +171,7 @@ class DenseTracker:
         self.lk_levels = lk_levels if lk_levels is not None else (
             2 if self._dis is None else 1 if not self._warp else 0)
         self.max_keyframes = int(max_keyframes)
+        self._lk = partial(lucas_kanade, self.lk_window, self.lk_levels)
         self._next_id = 0
         self._warned = set()
         self.reset()
@@ -220,7 +198,7 @@ class DenseTracker:
 
     def track(self, image):
         """Track one frame; returns its :class:`TrackFrame`."""
-        grey = self._to_grey(image)
+        grey, self._uint16_shift = to_grey(image, self.channel_order, self._uint16_shift)
         self._frame += 1
         if self._shape is not None and grey.shape != self._shape:
             raise FrameSizeError(
@@ -251,7 +229,7 @@ class DenseTracker:
     def _start(self, grey, counts):
         """First frame of a sequence: the first keyframe; tracks born on the region's grid."""
         self._shape = grey.shape
-        self._new_keyframe(grey, np.zeros(0, bool), self._region_mask(grey.shape), counts)
+        self._new_keyframe(grey, np.zeros(0, bool), region_mask(self.region, grey.shape), counts)
 
     def _follow(self, grey, counts):
         """Track the alive tracks into ``grey``; kill, re-anchor, birth."""
@@ -271,7 +249,8 @@ class DenseTracker:
         stale = zncc[keep] < self.reanchor_zncc
         by_count, uncovered = self._needs_keyframe(grey.shape)
         if by_count or uncovered or stale.sum() > _STALE_SHARE * max(len(stale), 1):
-            region = self._carried_region(grey.shape) if by_count or uncovered else None
+            region = carried_region(self.region, self._region_ref, self._uv, self.step,
+                                    grey.shape) if by_count or uncovered else None
             self._new_keyframe(grey, stale | by_count, region, counts)
 
     def _predict(self, grey):
@@ -322,7 +301,7 @@ class DenseTracker:
                                         - current.image.shape[1], 0), cv2.BORDER_REPLICATE)
             uv, ok = guess, np.ones(len(rows), bool)
             if self._refine_lk:
-                uv, ok = self._lucas_kanade(keyframe.normalised, image, ref, guess)
+                uv, ok = self._lk(keyframe.normalised, image, ref, guess)
             if self._refine_lk and self._dis is not None:
                 ok &= np.linalg.norm(uv - guess, axis=1) <= _MAX_REFINEMENT
             return uv, _patch_zncc(self._ref_patches[rows], _smoothed(image), uv), ok
@@ -333,7 +312,7 @@ class DenseTracker:
         warped = _warp(current, field, origin)
         where, ok = local, np.ones(len(rows), bool)
         if self._refine_lk:
-            where, ok = self._lucas_kanade(
+            where, ok = self._lk(
                 np.ascontiguousarray(keyframe.normalised[y0:y1, x0:x1]), warped, local,
                 local.copy())
             if self._dis is not None:
@@ -357,18 +336,9 @@ class DenseTracker:
         source = local
         for _ in range(_INVERSE_STEPS):       # where the warped keyframe shows each ``ref``
             source = ref - current.origin - sample(field, source)
-        moved, ok = self._lucas_kanade(warped, current.image, source, local.copy())
+        moved, ok = self._lk(warped, current.image, source, local.copy())
         ok &= np.linalg.norm(moved - local, axis=1) <= _MAX_REFINEMENT
         return moved + current.origin, ok
-
-    def _lucas_kanade(self, src, dst, points, guess):
-        """Pyramidal LK of ``points (P, 2)`` from ``src`` to ``dst`` starting at ``guess``."""
-        moved, status, _ = cv2.calcOpticalFlowPyrLK(
-            src, dst, points.reshape(-1, 1, 2), guess.reshape(-1, 1, 2).copy(),
-            winSize=(self.lk_window, self.lk_window), maxLevel=self.lk_levels,
-            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, _LK_ITERATIONS, _LK_EPS),
-            flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
-        return moved.reshape(-1, 2), status.ravel().astype(bool)
 
     def _forward_backward(self, grey, uv):
         """Distance ``(P,)`` between each track's keyframe point and its point tracked back
@@ -378,8 +348,8 @@ class DenseTracker:
         current = _normalise(grey)
         for key in np.unique(self._key):
             rows = np.flatnonzero(self._key == key)
-            moved, ok = self._lucas_kanade(current, self._keyframes[key].normalised,
-                                           points[rows], self._uv_ref[rows].copy())
+            moved, ok = self._lk(current, self._keyframes[key].normalised, points[rows],
+                                 self._uv_ref[rows].copy())
             distance = np.linalg.norm(moved - self._uv_ref[rows], axis=1)
             back[rows] = np.where(ok, distance, np.inf)
         return back
@@ -390,7 +360,7 @@ class DenseTracker:
         (new tracks to be born)."""
         by_count = self.reanchor_every is not None and \
             self._frame - self._newest_key >= self.reanchor_every
-        cells = self._region_cells(self._region_ref)
+        cells = region_cells(self._region_ref, self.step)
         uncovered = _uncovered_share(cells, self._uv, self.step, shape) > \
             self.reanchor_uncovered
         return by_count, uncovered
@@ -421,7 +391,7 @@ class DenseTracker:
     def _birth(self, grey, key):
         """New tracks on the uncovered, textured grid cells of the region, anchored to the
         keyframe ``key``; returns how many were born."""
-        cells = self._region_cells(self._region_ref)
+        cells = region_cells(self._region_ref, self.step)
         if len(cells):
             cells = cells[~_covered(cells, self._uv, self.step, grey.shape)]
         patches = _centred_patches(grey, cells)
@@ -441,69 +411,7 @@ class DenseTracker:
         self._ref_patches = np.concatenate([self._ref_patches, patches])
         return n
 
-    # ---------------------------------------------------------------- region
-
-    def _region_mask(self, shape):
-        """The region of the first frame as a bool mask ``(H, W)``."""
-        H, W = shape
-        if isinstance(self.region, np.ndarray):
-            if self.region.shape != shape:
-                raise FrameSizeError(f'region mask is {self.region.shape[1]} x '
-                                     f'{self.region.shape[0]} but the frame is {W} x {H}')
-            return self.region
-        mask = np.zeros(shape, bool)
-        if self.region is None:
-            mask[:] = True
-        else:
-            x0, y0, x1, y1 = self.region
-            mask[max(y0, 0):max(y1 + 1, 0), max(x0, 0):max(x1 + 1, 0)] = True
-        return mask
-
-    def _carried_region(self, shape):
-        """The region in the current frame: a mask moves with its tracks (the grid cells
-        holding tracks, holes closed); a rectangle or the whole image stays where it is. A
-        mask whose tracks are all gone starts again from the first frame's."""
-        if not isinstance(self.region, np.ndarray):
-            return self._region_ref
-        carried = _occupied_mask(self._uv, self.step, shape)
-        return carried if carried.any() else self._region_mask(shape)
-
-    def _region_cells(self, region):
-        """Grid points ``(G, 2)`` int (u, v) of the region: ``k step + step // 2``."""
-        offset = self.step // 2
-        rows = region[offset::self.step, offset::self.step]
-        v, u = np.nonzero(rows)
-        return np.column_stack([u, v]) * self.step + offset
-
     # ---------------------------------------------------------------- input
-
-    def _to_grey(self, image):
-        """A frame as a contiguous ``(H, W)`` uint8 grey image."""
-        image = np.asarray(image)
-        if image.ndim == 3 and image.shape[2] == 1:
-            image = image[:, :, 0]
-        if image.ndim not in (2, 3) or (image.ndim == 3 and image.shape[2] not in (3, 4)) \
-                or min(image.shape[:2]) < 8:
-            raise ValueError(f'a frame must be (H, W), (H, W, 3) or (H, W, 4) with H, W >= 8; '
-                             f'got shape {image.shape}')
-        image = self._to_uint8(image)
-        if image.ndim == 3:
-            code = {('rgb', 3): cv2.COLOR_RGB2GRAY, ('rgb', 4): cv2.COLOR_RGBA2GRAY,
-                    ('bgr', 3): cv2.COLOR_BGR2GRAY, ('bgr', 4): cv2.COLOR_BGRA2GRAY}
-            image = cv2.cvtColor(image, code[self.channel_order, image.shape[2]])
-        return np.ascontiguousarray(image)
-
-    def _to_uint8(self, image):
-        if image.dtype == np.uint8:
-            return image
-        if image.dtype == np.uint16:
-            if self._uint16_shift is None:
-                bits = max(int(image.max()).bit_length(), 8)
-                self._uint16_shift = bits - 8
-            return np.clip(image >> self._uint16_shift, 0, 255).astype(np.uint8)
-        if np.issubdtype(image.dtype, np.floating):
-            return (np.clip(np.nan_to_num(image), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
-        raise ValueError(f'frames must be uint8, uint16 or float in [0, 1]; got {image.dtype}')
 
     def _frame_out(self, shown, counts):
         counts['alive'] = int(shown.sum())
@@ -518,6 +426,109 @@ class DenseTracker:
 
 
 # -------------------------------------------------------------------- helpers
+
+def _check_parameters(step, method, channel_order, min_zncc, reanchor_zncc, reanchor_uncovered,
+                      min_texture, blank_std, fb_max_px, reanchor_every, lk_window,
+                      max_keyframes, lk_levels):
+    """Raise ValueError naming the first of DenseTracker's parameters out of its range."""
+    if isinstance(step, bool) or not isinstance(step, (int, np.integer)) or step < 1:
+        raise ValueError(f'step must be an int >= 1 pixel; got {step!r}')
+    if method not in METHODS:
+        raise ValueError(f'unknown method {method!r}; choose from {METHODS}')
+    if channel_order not in ('rgb', 'bgr'):
+        raise ValueError(f"channel_order must be 'rgb' or 'bgr'; got {channel_order!r}")
+    _check_range('min_zncc', min_zncc, -1.0, 1.0)
+    _check_range('reanchor_zncc', reanchor_zncc, -1.0, 1.0)
+    _check_range('reanchor_uncovered', reanchor_uncovered, 0.0, 1.0)
+    _check_range('min_texture', min_texture, 0.0, 255.0)
+    _check_range('blank_std', blank_std, 0.0, 255.0)
+    if fb_max_px is not None:
+        _check_range('fb_max_px', fb_max_px, 0.0, np.inf)
+    if reanchor_every is not None and (not isinstance(reanchor_every, (int, np.integer))
+                                       or reanchor_every < 1):
+        raise ValueError(f'reanchor_every must be None or an int >= 1; got '
+                         f'{reanchor_every!r}')
+    if not isinstance(lk_window, (int, np.integer)) or lk_window < 3 or lk_window % 2 == 0:
+        raise ValueError(f'lk_window must be an odd int >= 3; got {lk_window!r}')
+    if isinstance(max_keyframes, bool) or not isinstance(max_keyframes, (int, np.integer)) \
+            or max_keyframes < 1:
+        raise ValueError(f'max_keyframes must be an int >= 1; got {max_keyframes!r}')
+    if lk_levels is not None and (not isinstance(lk_levels, (int, np.integer))
+                                  or not 0 <= lk_levels <= 6):
+        raise ValueError(f'lk_levels must be None or an int in [0, 6]; got {lk_levels!r}')
+
+
+def region_mask(region, shape):
+    """The first frame's ``region`` (None, a bool mask or a rectangle) as a bool mask
+    ``shape = (H, W)``."""
+    H, W = shape
+    if isinstance(region, np.ndarray):
+        if region.shape != shape:
+            raise FrameSizeError(f'region mask is {region.shape[1]} x {region.shape[0]} but '
+                                 f'the frame is {W} x {H}')
+        return region
+    mask = np.zeros(shape, bool)
+    if region is None:
+        mask[:] = True
+    else:
+        x0, y0, x1, y1 = region
+        mask[max(y0, 0):max(y1 + 1, 0), max(x0, 0):max(x1 + 1, 0)] = True
+    return mask
+
+
+def carried_region(region, region_ref, uv, step, shape):
+    """The region in the current frame: a mask moves with its tracks ``uv: (P, 2)`` (the grid
+    cells holding tracks, holes closed); a rectangle or the whole image stays where it is
+    (``region_ref``). A mask whose tracks are all gone starts again from the first frame's."""
+    if not isinstance(region, np.ndarray):
+        return region_ref
+    carried = _occupied_mask(uv, step, shape)
+    return carried if carried.any() else region_mask(region, shape)
+
+
+def region_cells(region, step):
+    """Grid points ``(G, 2)`` int (u, v) of the bool mask ``region``: ``k step + step // 2``."""
+    offset = step // 2
+    v, u = np.nonzero(region[offset::step, offset::step])
+    return np.column_stack([u, v]) * step + offset
+
+
+def to_grey(image, channel_order='rgb', uint16_shift=None):
+    """``(grey, shift)``: a frame as a contiguous ``(H, W)`` uint8 grey image, and the bit
+    shift that brings uint16 frames to 8 bits (chosen on a stream's first uint16 frame from its
+    largest value, then kept: pass it back)."""
+    image = np.asarray(image)
+    if image.ndim == 3 and image.shape[2] == 1:
+        image = image[:, :, 0]
+    if image.ndim not in (2, 3) or (image.ndim == 3 and image.shape[2] not in (3, 4)) \
+            or min(image.shape[:2]) < 8:
+        raise ValueError(f'a frame must be (H, W), (H, W, 3) or (H, W, 4) with H, W >= 8; '
+                         f'got shape {image.shape}')
+    if image.dtype == np.uint16:
+        if uint16_shift is None:
+            uint16_shift = max(int(image.max()).bit_length(), 8) - 8
+        image = np.clip(image >> uint16_shift, 0, 255).astype(np.uint8)
+    elif np.issubdtype(image.dtype, np.floating):
+        image = (np.clip(np.nan_to_num(image), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+    elif image.dtype != np.uint8:
+        raise ValueError(f'frames must be uint8, uint16 or float in [0, 1]; got {image.dtype}')
+    if image.ndim == 3:
+        code = {('rgb', 3): cv2.COLOR_RGB2GRAY, ('rgb', 4): cv2.COLOR_RGBA2GRAY,
+                ('bgr', 3): cv2.COLOR_BGR2GRAY, ('bgr', 4): cv2.COLOR_BGRA2GRAY}
+        image = cv2.cvtColor(image, code[channel_order, image.shape[2]])
+    return np.ascontiguousarray(image), uint16_shift
+
+
+def lucas_kanade(window, levels, src, dst, points, guess):
+    """Pyramidal LK (``window`` pixels, ``levels`` pyramid levels) of ``points (P, 2)`` from
+    ``src`` to ``dst`` starting at ``guess``: ``(moved (P, 2), ok (P,) bool)``."""
+    moved, status, _ = cv2.calcOpticalFlowPyrLK(
+        src, dst, points.reshape(-1, 1, 2), guess.reshape(-1, 1, 2).copy(),
+        winSize=(window, window), maxLevel=levels,
+        criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, _LK_ITERATIONS, _LK_EPS),
+        flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
+    return moved.reshape(-1, 2), status.ravel().astype(bool)
+
 
 def _check_range(name, value, low, high):
     if isinstance(value, bool) or not isinstance(value, (int, float, np.number)) \
