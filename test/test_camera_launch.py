@@ -3,11 +3,9 @@ that record what it builds (the launch packages are not on PyPI): the tracker fe
 reconstruction node in one namespace, every argument is declared and used, the default
 parameter files exist and name only known parameters. Where ``launch_ros`` is importable, the
 description is also built with the real classes."""
-import importlib.util
 from pathlib import Path
-import sys
-import types
 
+from launch_stubs import install_stubs, load_launch, Recorded
 import pytest
 import yaml
 
@@ -16,44 +14,12 @@ from grass_nrsfm_ros import params, tracker_params
 REPO = Path(__file__).resolve().parents[1]
 LAUNCH_FILE = REPO / 'launch' / 'camera.launch.py'
 ARGUMENTS = {'namespace', 'image', 'camera_info', 'tracker_params_file', 'params_file', 'rviz'}
-STUBS = {'launch': ['LaunchDescription'], 'launch.actions': ['DeclareLaunchArgument'],
-         'launch.conditions': ['IfCondition'],
-         'launch.substitutions': ['LaunchConfiguration', 'PathJoinSubstitution'],
-         'launch_ros': [], 'launch_ros.actions': ['Node'],
-         'launch_ros.substitutions': ['FindPackageShare']}
-
-
-class Recorded:
-    """A stub launch class: keeps its arguments; equal to one made with the same."""
-
-    def __init__(self, *args, **kwargs):
-        self.args, self.kwargs = args, kwargs
-
-    def __eq__(self, other):
-        return type(self) is type(other) and (self.args, self.kwargs) == (other.args,
-                                                                          other.kwargs)
-
-    def __repr__(self):
-        return f'{type(self).__name__}{self.args}{self.kwargs}'
-
-
-def load_launch_file():
-    spec = importlib.util.spec_from_file_location('camera_launch', LAUNCH_FILE)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 @pytest.fixture
 def stubbed(monkeypatch):
     """The stub classes by name, installed in sys.modules as the launch packages."""
-    classes = {}
-    for module_name, names in STUBS.items():
-        module = types.ModuleType(module_name)
-        for name in names:
-            classes[name] = module.__dict__[name] = type(name, (Recorded,), {})
-        monkeypatch.setitem(sys.modules, module_name, module)
-    return classes
+    return install_stubs(monkeypatch)
 
 
 def used_configurations(value, stub):
@@ -70,7 +36,7 @@ def used_configurations(value, stub):
 
 
 def test_camera_launch_chains_tracker_and_node_in_one_namespace(stubbed):
-    description = load_launch_file().generate_launch_description()
+    description = load_launch(LAUNCH_FILE).generate_launch_description()
     assert isinstance(description, stubbed['LaunchDescription'])
     entities = description.args[0]
     declared = {e.args[0]: e.kwargs['default_value'] for e in entities
@@ -111,6 +77,6 @@ def test_default_tracker_params_apply_in_any_namespace():
 def test_camera_launch_with_the_real_launch_packages():
     launch = pytest.importorskip('launch')
     pytest.importorskip('launch_ros')
-    description = load_launch_file().generate_launch_description()
+    description = load_launch(LAUNCH_FILE).generate_launch_description()
     assert isinstance(description, launch.LaunchDescription)
     assert {a.name for a in description.get_launch_arguments()} == ARGUMENTS

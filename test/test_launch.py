@@ -2,11 +2,9 @@
 against stubs of the ``launch`` / ``launch_ros`` modules that record what it builds; every
 argument it uses is declared and every parameter it sets exists in the node's schema. Where
 ``launch_ros`` is importable, the description is also built with the real classes."""
-import importlib.util
 from pathlib import Path
-import sys
-import types
 
+from launch_stubs import install_stubs, load_launch, Recorded
 import pytest
 
 from grass_nrsfm_ros import params
@@ -14,45 +12,12 @@ from grass_nrsfm_ros import params
 REPO = Path(__file__).resolve().parents[1]
 LAUNCH_FILE = REPO / 'launch' / 'grass_nrsfm.launch.py'
 ARGUMENTS = {'namespace', 'params_file', 'tracks', 'points', 'record_path', 'rviz'}
-STUBS = {'launch': ['LaunchDescription'], 'launch.actions': ['DeclareLaunchArgument'],
-         'launch.conditions': ['IfCondition'],
-         'launch.substitutions': ['LaunchConfiguration', 'PathJoinSubstitution'],
-         'launch_ros': [], 'launch_ros.actions': ['Node'],
-         'launch_ros.substitutions': ['FindPackageShare']}
-
-
-class Recorded:
-    """A stub launch class: keeps its arguments."""
-
-    def __init__(self, *args, **kwargs):
-        self.args, self.kwargs = args, kwargs
-
-    def __eq__(self, other):
-        same = (self.args, self.kwargs) == (getattr(other, 'args', None),
-                                            getattr(other, 'kwargs', None))
-        return type(self) is type(other) and same
-
-    def __repr__(self):
-        return f'{type(self).__name__}{self.args}{self.kwargs}'
-
-
-def load_launch_file():
-    spec = importlib.util.spec_from_file_location('grass_nrsfm_launch', LAUNCH_FILE)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 @pytest.fixture
 def stubbed(monkeypatch):
     """The stub classes by name, installed in sys.modules as the launch packages."""
-    classes = {}
-    for module_name, names in STUBS.items():
-        module = types.ModuleType(module_name)
-        for name in names:
-            classes[name] = module.__dict__[name] = type(name, (Recorded,), {})
-        monkeypatch.setitem(sys.modules, module_name, module)
-    return classes
+    return install_stubs(monkeypatch)
 
 
 def walk(value):
@@ -70,7 +35,7 @@ def walk(value):
 
 
 def test_launch_file_builds_and_names_only_known_parameters(stubbed):
-    description = load_launch_file().generate_launch_description()
+    description = load_launch(LAUNCH_FILE).generate_launch_description()
     assert isinstance(description, stubbed['LaunchDescription'])
     entities = description.args[0]
     declared = {e.args[0]: e.kwargs['default_value'] for e in entities
@@ -103,6 +68,6 @@ def test_launch_file_builds_and_names_only_known_parameters(stubbed):
 def test_launch_file_with_the_real_launch_packages():
     launch = pytest.importorskip('launch')
     pytest.importorskip('launch_ros')
-    description = load_launch_file().generate_launch_description()
+    description = load_launch(LAUNCH_FILE).generate_launch_description()
     assert isinstance(description, launch.LaunchDescription)
     assert {a.name for a in description.get_launch_arguments()} == ARGUMENTS
