@@ -10,9 +10,11 @@ against it in every frame, so its error does not grow frame by frame:
    equalised: blind to shading gain and offset), is warped into the keyframe by the smooth
    displacement field of that keyframe's predicted tracks (so the turn and deformation since
    the keyframe are undone), and Lucas-Kanade from the normalised keyframe measures what the
-   field missed at each track;
+   field missed at each track; then the other way round (the keyframe warped into the frame,
+   LK from it to the frame), and the track is the mean of the two estimates;
 3. checks: a ZNCC of each track's patch against its keyframe patch, taken in the warped frame
-   (optionally a forward-backward check); occlusion shows up as a failed check.
+   on slightly blurred images (optionally a forward-backward check); occlusion shows up as a
+   failed check.
 
 A track whose patch has changed (ZNCC below ``reanchor_zncc``) is *stale*: when enough
 tracks are stale, the frame becomes a keyframe and they (with ``max_keyframes`` 1, the
