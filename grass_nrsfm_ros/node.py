@@ -117,7 +117,7 @@ class ReconstructionNode(Node):
         self.last_frame_at = time.monotonic()
         if self.pipeline.windowing.stats['resets'] > self.counts['resets']:
             self.counts['resets'] = self.pipeline.windowing.stats['resets']
-            self.get_logger().info(f'new track ids at {stamp} ns: started a new sequence')
+            self.get_logger().info(f'all track ids changed at {stamp} ns: started a new sequence')
         for result in points:
             self._publish(self.points_pub, result)
         self.latencies.append(time.monotonic() - received)
