@@ -14,6 +14,7 @@ or ``python -m grass_nrsfm_ros.node --ros-args ...``.
 """
 from collections import deque
 import os
+import re
 import sys
 import threading
 import time
@@ -65,6 +66,7 @@ class ReconstructionNode(Node):
         self.counts = dict(messages=0, dropped_messages=0, dropped_windows=0, resets=0)
         self.last_solve, self.last_reset, self.last_frame_at = {}, '', None
         self.latencies = deque(maxlen=LATENCY_WINDOW)      # tracks received -> points sent
+        self.drop_loggers = {}                              # kind of bad input -> its logger
         self.stopping = threading.Event()
         overrides = QoSOverridingOptions.with_default_policies()
         self.input = InputSubscription(self, 'tracks', self._on_tracks_raw,
@@ -125,9 +127,14 @@ class ReconstructionNode(Node):
             self._publish_refined()
 
     def _drop(self, reason):
+        """Count a dropped message; each kind of reason (its text, numbers and quoted names
+        aside) is logged at most once per LOG_PERIOD_S by a logger of its own (rclpy throttles
+        per call site and logger)."""
         self.counts['dropped_messages'] += 1
-        self.get_logger().warning(f'dropped tracks message: {reason}',
-                                  throttle_duration_sec=LOG_PERIOD_S)
+        kind = re.sub(r"\d+|'[^']*'", '#', reason)
+        logger = self.drop_loggers.setdefault(
+            kind, self.get_logger().get_child(f'input{len(self.drop_loggers)}'))
+        logger.warning(f'dropped tracks message: {reason}', throttle_duration_sec=LOG_PERIOD_S)
 
     # -- mapping results (receiver thread, or the executor's with mapping: inline) --------------
     def _publish_refined(self):
