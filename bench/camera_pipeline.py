@@ -6,7 +6,9 @@ from an image's stamp (the wall clock when it is published) to the receipt here 
 and of its points (p50 / p95 / max, all frames and after the first 2 s); the nodes' own
 figures from ``/diagnostics`` (tracker latency, tracks alive). Images: a rendered textured
 bending sheet (grass_nrsfm_ros.frontend.scenes, 640 x 480 rgb8, played forwards and backwards),
-its frame-0 mask as the tracker's ``mask``, camera_info beside each image.
+its frame-0 mask as the tracker's ``mask``, camera_info beside each image. Every process (this
+one stands for the camera driver) gets the Fast DDS profile that camera.launch.py sets,
+``config/fastdds_large_images.xml``, unless ``--dds-profile ''`` (Fast DDS's defaults).
 
     python -m bench.camera_pipeline                      # 20 s, step 8, the shipped solver
     python -m bench.camera_pipeline --seconds 10 --step 4 --solver rigid
@@ -45,6 +47,7 @@ RESULTS = REPO / 'bench' / 'results' / 'camera_pipeline.json'
 TRACKER_LAUNCH = 'import sys; from grass_nrsfm_ros.tracker_node import main; sys.exit(main())'
 NAMESPACE = '/bench_camera'
 WARMUP_S = 2.0
+DDS_PROFILE = REPO / 'config' / 'fastdds_large_images.xml'
 
 
 class Endpoint:
@@ -154,10 +157,16 @@ def start_node(launch, args, env, log):
 
 
 def run(seconds=20.0, step=8, method=None, solver='grassmann', encoding='rgb8',
-        size=(480, 640), rate=30.0, frames=45, image_depth=None, log=common.log):
+        size=(480, 640), rate=30.0, frames=45, image_depth=None, dds_profile=DDS_PROFILE,
+        log=common.log):
     """Run the pipeline once; return the figures. ``image_depth``: the tracker's image
-    history (None: its default, 5)."""
+    history (None: its default, 5); ``dds_profile``: a Fast DDS XML profile for every
+    process (None or '': Fast DDS's defaults)."""
     tmp = Path(tempfile.mkdtemp(prefix='grass_camera_'))
+    if dds_profile:
+        os.environ['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(dds_profile)
+    else:
+        os.environ.pop('FASTRTPS_DEFAULT_PROFILES_FILE', None)
     env = isolated_env(tmp)
     log(f'rendering {frames} frames of {size[1]} x {size[0]}')
     messages, mask, info = rendered(frames, encoding, size)
@@ -208,6 +217,7 @@ def run(seconds=20.0, step=8, method=None, solver='grassmann', encoding='rgb8',
     return dict(
         seconds=seconds, rate=rate, size=list(size), encoding=encoding, step=step,
         method=method or 'default', solver=solver, image_depth=image_depth or 5,
+        dds_profile=Path(dds_profile).name if dds_profile else 'Fast DDS defaults',
         sent=n_total,
         sends_late_by_more_than_a_period=late,
         tracks_back=tracks_back, points_back=points_back,
@@ -239,11 +249,13 @@ def main(argv=None):
     parser.add_argument('--size', type=int, nargs=2, default=(480, 640), metavar=('H', 'W'))
     parser.add_argument('--image-depth', type=int, default=None,
                         help="the tracker's image history (its default: 5)")
+    parser.add_argument('--dds-profile', default=str(DDS_PROFILE),
+                        help="Fast DDS XML profile for every process ('': Fast DDS's defaults)")
     parser.add_argument('--key', default='camera_pipeline',
                         help='key in bench/results/camera_pipeline.json')
     args = parser.parse_args(argv)
     figures = run(args.seconds, args.step, args.method, args.solver, args.encoding,
-                  tuple(args.size), image_depth=args.image_depth)
+                  tuple(args.size), image_depth=args.image_depth, dds_profile=args.dds_profile)
     common.merge_result(RESULTS, args.key,
                         common.jsonable({'environment': common.environment(), **figures}))
     print(json.dumps(figures, indent=1))

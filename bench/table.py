@@ -264,13 +264,17 @@ def frontend_table(doc):
 
 
 def camera_pipeline_table(doc):
-    lines = ['| run | frames back | image -> points p50 / p95 ms |', '|---|---|---|']
+    lines = ['| run | image | Fast DDS profile | frames back | image -> points p50 / p95 ms | '
+             'load average |', '|---|---|---|---|---|---|']
     for key, run in doc.items():
         if not isinstance(run, dict) or 'environment' not in run:
             continue
         lat = run.get('image_to_points_ms', {})
-        lines.append(f"| {key} ({run['size'][1]} x {run['size'][0]}) | {run['points_back']} / "
-                     f"{run['sent']} | {fmt(lat.get('p50'), 0)} / {fmt(lat.get('p95'), 0)} |")
+        load = max(run.get('load_average_before', [0])[0], run.get('load_average_after', [0])[0])
+        lines.append(f"| {key} | {run['size'][1]} x {run['size'][0]} {run['encoding']} | "
+                     f"{run.get('dds_profile', 'Fast DDS defaults')} | {run['points_back']} / "
+                     f"{run['sent']} | {fmt(lat.get('p50'), 0)} / {fmt(lat.get('p95'), 0)} | "
+                     f"{fmt(load, 1)} |")
     return lines
 
 

@@ -5,9 +5,11 @@ import sys
 import types
 
 #: the launch modules and the classes the package's launch files use
-STUBS = {'launch': ['LaunchDescription'], 'launch.actions': ['DeclareLaunchArgument'],
+STUBS = {'launch': ['LaunchDescription'],
+         'launch.actions': ['DeclareLaunchArgument', 'SetEnvironmentVariable'],
          'launch.conditions': ['IfCondition'],
-         'launch.substitutions': ['LaunchConfiguration', 'PathJoinSubstitution'],
+         'launch.substitutions': ['EnvironmentVariable', 'LaunchConfiguration',
+                                  'PathJoinSubstitution'],
          'launch_ros': [], 'launch_ros.actions': ['Node'],
          'launch_ros.substitutions': ['FindPackageShare']}
 

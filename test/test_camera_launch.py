@@ -13,7 +13,8 @@ from grass_nrsfm_ros import params, tracker_params
 
 REPO = Path(__file__).resolve().parents[1]
 LAUNCH_FILE = REPO / 'launch' / 'camera.launch.py'
-ARGUMENTS = {'namespace', 'image', 'camera_info', 'tracker_params_file', 'params_file', 'rviz'}
+ARGUMENTS = {'namespace', 'image', 'camera_info', 'tracker_params_file', 'params_file', 'rviz',
+             'dds_profile'}
 
 
 @pytest.fixture
@@ -63,6 +64,14 @@ def test_camera_launch_chains_tracker_and_node_in_one_namespace(stubbed):
     assert node['parameters'] == [config('params_file')]
     assert nodes['rviz2']['condition'] == stubbed['IfCondition'](config('rviz'))
     assert declared['rviz'] == 'false' and declared['image'] == 'image'
+    assert declared['dds_profile'] == stubbed['EnvironmentVariable'](
+        'FASTRTPS_DEFAULT_PROFILES_FILE', default_value=[
+            stubbed['PathJoinSubstitution']([share, 'config', 'fastdds_large_images.xml'])])
+    assert (REPO / 'config' / 'fastdds_large_images.xml').is_file()
+    profile, = [e for e in entities if isinstance(e, stubbed['SetEnvironmentVariable'])]
+    assert profile.args == ('FASTRTPS_DEFAULT_PROFILES_FILE', config('dds_profile'))
+    assert entities.index(profile) < entities.index(next(
+        n for n in entities if isinstance(n, stubbed['Node'])))   # set before the nodes start
 
 
 def test_default_tracker_params_apply_in_any_namespace():
