@@ -1,11 +1,14 @@
 """Reading the commands' ``.npz`` files (the layout of ``../shared/data``: ``W: (2F, P)``,
-optional ground truth ``S: (3F, P)`` (or ``S_gt``), optional ``visible: (F, P)`` bool)."""
+optional ground truth ``S: (3F, P)`` (or ``S_gt``), optional ``visible: (F, P)`` bool,
+optional pinhole intrinsics ``K: (3, 3)``)."""
 import contextlib
 import zipfile
 
 import numpy as np
 
 from grass_nrsfm_ros.cli import UserError
+from grass_nrsfm_ros.nrsfm.camera import validate_intrinsics
+from grass_nrsfm_ros.nrsfm.measurement import InvalidInputError
 
 
 @contextlib.contextmanager
@@ -38,6 +41,18 @@ def load_tracks(path):
     if W.dtype.kind not in 'fiu':
         raise UserError(f'{path}: W must be numeric; got dtype {W.dtype}')
     return W.astype(np.float64), None if S is None else np.asarray(S, np.float64), visible
+
+
+def load_camera(path):
+    """``K: (3, 3)`` float64 of an .npz (validated), or None where it has none."""
+    with opened(path) as npz:
+        if 'K' not in npz:
+            return None
+        K = np.asarray(npz['K'])
+    try:
+        return validate_intrinsics(K, name=f'{path}: K')
+    except InvalidInputError as exc:
+        raise UserError(str(exc)) from None
 
 
 #: the shapes an .npz holds, in order of preference: an estimate's (``reconstruct`` writes

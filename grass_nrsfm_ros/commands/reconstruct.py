@@ -1,10 +1,17 @@
 """``grass-nrsfm reconstruct IN -o OUT [--config FILE]``.
 
 ``IN.npz`` holds ``W: (2F, P)`` (and optionally ground truth ``S: (3F, P)``, then e3D is
-printed); ``OUT.npz`` gets ``S``, ``R``, ``translation``, ``groups`` and the solver report (JSON
-string ``report``). The solver needs complete tracks: an input whose ``visible: (F, P)`` marks
-entries as unobserved is refused, unless ``--complete-tracks`` keeps the tracks seen in every
-frame (their columns are saved as ``points``, which ``evaluate`` uses). A bag directory or
+printed, and pinhole intrinsics ``K: (3, 3)``); ``OUT.npz`` gets ``S``, ``R``, ``translation``,
+``groups``, ``projection`` and the solver report (JSON string ``report``), and ``K`` where one
+was used. With ``K`` (the npz's, or ``--camera FX FY CX CY``, which wins) the pixel tracks are
+normalised (``K^-1 [u, v, 1]``) and solved with the perspective model (solver parameter
+``projection`` 'auto'): ``S`` is in the camera frame, its pinhole image ``K [x/z, y/z, 1]`` the
+tracks, in units of each frame's mean depth (``--scale``: that depth, e.g. the camera's
+distance to the surface in metres, for metres). Without ``K`` the pixels are solved as
+orthographic projections, as before, with a warning. The solver needs complete tracks: an
+input whose ``visible: (F, P)`` marks entries as unobserved is refused, unless
+``--complete-tracks`` keeps the tracks seen in every frame (their columns are saved as
+``points``, which ``evaluate`` uses). A bag directory or
 ``.mcap``/``.bag`` file runs the node's live pipeline offline (each window solved inline as it
 closes) and writes an output bag (there, each window uses the tracks it sees throughout):
 :func:`reconstruct_bag`, which the demo uses too, owns that offline run.
@@ -23,9 +30,11 @@ import numpy as np
 from grass_nrsfm_ros import bag
 from grass_nrsfm_ros.cli import UserError
 from grass_nrsfm_ros.cloud import CloudError, decode_tracks
-from grass_nrsfm_ros.commands.npz import complete_tracks, load_tracks
+from grass_nrsfm_ros.commands.npz import complete_tracks, load_camera, load_tracks
 from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM
-from grass_nrsfm_ros.nrsfm.measurement import validate_shapes
+from grass_nrsfm_ros.nrsfm.camera import (intrinsics, normalise, resolved_projection,
+                                          warn_orthographic)
+from grass_nrsfm_ros.nrsfm.measurement import InvalidInputError, validate_shapes
 from grass_nrsfm_ros.params import load_config, solver_kwargs
 from grass_nrsfm_ros.pipeline import live_events, make_pipeline
 
@@ -36,6 +45,12 @@ def add_arguments(parser):
     parser.add_argument('--config', help="params.yaml (the node's file works too)")
     parser.add_argument('--topic', default='/tracks', help='tracks topic when IN is a bag')
     parser.add_argument('--quiet', action='store_true', help='no progress display')
+    parser.add_argument('--camera', type=float, nargs=4, metavar=('FX', 'FY', 'CX', 'CY'),
+                        help='pinhole intrinsics of the pixel tracks (pixels; overrides the '
+                             "npz's K)")
+    parser.add_argument('--scale', type=float, default=1.0,
+                        help="with K: each frame's mean depth in the output's units (default "
+                             '1; the distance to the surface in metres gives metres)')
     parser.add_argument('--complete-tracks', action='store_true',
                         help='when visible marks missing entries, reconstruct only the tracks '
                              'seen in every frame (saved as `points` in OUT)')
@@ -98,24 +113,68 @@ def check_writable(path):
                         'writable')
 
 
+def chosen_camera(args):
+    """``K: (3, 3)`` of ``--camera`` or of the input npz, or None."""
+    K = load_camera(args.input)
+    if args.camera is None:
+        return K
+    if K is not None:
+        print(f'{args.input}: its K replaced by --camera {" ".join(map(str, args.camera))}')
+    try:
+        return intrinsics(*args.camera)
+    except InvalidInputError as exc:
+        raise UserError(f'--camera: {exc}') from None
+
+
+def solved_tracks(W, K, solver, scale):
+    """``(W_solved: (2F, P), projection)``: the tracks as the solver takes them (normalised
+    with K under the perspective model) and the projection resolved (the solver's parameter
+    set to it); warns once where pixels are solved without K."""
+    projection = resolved_projection(solver.projection, K)
+    if not (np.isfinite(scale) and scale > 0):
+        raise UserError(f'--scale {scale}: expected a finite number > 0')
+    if projection == 'orthographic' and scale != 1.0:
+        raise UserError('--scale applies to the perspective model (with K)')
+    solver.set_params(projection=projection)
+    if projection == 'orthographic' and K is None:
+        warn_orthographic()
+    if projection == 'perspective' and K is not None:
+        return normalise(W, K), projection
+    return W, projection
+
+
 def reconstruct_npz(args):
     W, S_gt, points = observed_tracks(args.input, args.complete_tracks)
     solver, _ = solver_from_config(args.config)
+    K = chosen_camera(args)
+    W_in, projection = solved_tracks(W, K, solver, args.scale)
     check_writable(args.output)                          # before a long solve, not after it
     progress = Progress(not args.quiet)
     try:
-        result = solver.fit(W, progress=progress)
+        result = solver.fit(W_in, progress=progress)
     finally:
         progress.close()
     report = result.report
+    S = result.S * args.scale if projection == 'perspective' else result.S
     extra = {} if points is None else {'points': points}
-    np.savez_compressed(args.output, S=result.S, R=result.R, translation=result.translation,
-                        groups=result.groups, report=json.dumps(report.to_dict()), **extra)
+    if K is not None:
+        extra['K'] = K
+    np.savez_compressed(args.output, S=S, R=result.R, translation=result.translation,
+                        groups=result.groups, projection=projection,
+                        report=json.dumps(report.to_dict()), **extra)
     F, P = W.shape[0] // 2, W.shape[1]
-    print(f'{args.input}: F={F} P={P} K_rot={report.K_rot} iterations={report.iterations} '
-          f'seconds={report.seconds["total"]:.1f} -> {args.output}')
+    print(f'{args.input}: F={F} P={P} {projection} K_rot={report.K_rot} '
+          f'iterations={report.iterations} seconds={report.seconds["total"]:.1f} -> '
+          f'{args.output}')
+    if report.perspective is not None:
+        p = report.perspective
+        print(f'perspective: kept round {p["kept"]} of {len(p["rounds"]) - 1} '
+              f'({p["stopped"]}); S in the camera frame, each frame\'s mean depth '
+              f'{args.scale:g}')
     if S_gt is not None:
-        print(f'e3D (per-frame Procrustes, no scale): {e3d(result.S, S_gt):.4f}')
+        scaled = projection == 'perspective'          # the monocular scale is unknown
+        print(f'e3D (per-frame Procrustes, {"with" if scaled else "no"} scale): '
+              f'{e3d(S, S_gt, scale=scaled):.4f}')
     return 0
 
 

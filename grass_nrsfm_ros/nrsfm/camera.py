@@ -11,9 +11,15 @@ point is ``x = K^-1 [u, v, 1] = (X/Z, Y/Z)``: the ray's direction, unitless.
   :func:`to_pixels` maps back; both keep NaN (missing) entries NaN.
 * :func:`project` gives the normalised (or, with ``K``, pixel) tracks of camera-frame shapes
   ``S: (3F, P)``.
+* :func:`resolved_projection` turns the solver parameter ``projection`` ('auto') into
+  'perspective' or 'orthographic' by whether a ``K`` came with the tracks;
+  :func:`warn_orthographic` says once per process that pixels without ``K`` are solved as
+  orthographic projections.
 
 Rows ``2f, 2f+1`` of a track matrix are frame f's u, v (pixels) or x, y (normalised).
 """
+import warnings
+
 import numpy as np
 
 from .measurement import as_frames, from_frames, InvalidInputError
@@ -87,3 +93,29 @@ def project(S, K=None):
                                 'sees only points with Z > 0')
     W = from_frames(X[:, :2, :] / Z)
     return W if K is None else to_pixels(W, K)
+
+
+class OrthographicPixelsWarning(UserWarning):
+    """Pixel tracks with no camera intrinsics, solved as orthographic projections."""
+
+
+#: what :func:`warn_orthographic` says
+ORTHOGRAPHIC_MESSAGE = (
+    'no camera intrinsics (K): the pixel tracks are solved as orthographic projections; a '
+    'pinhole camera close to the surface doubles the 3D error (docs/decisions/0702). Give K '
+    '(an npz K, --camera FX FY CX CY, a camera_info topic or the camera parameter).')
+
+
+def warn_orthographic():
+    """Warn (an :class:`OrthographicPixelsWarning`; Python's default filter shows it once per
+    process) that pixel tracks without ``K`` are solved as orthographic projections."""
+    warnings.warn(ORTHOGRAPHIC_MESSAGE, OrthographicPixelsWarning)
+
+
+def resolved_projection(projection, K):
+    """'perspective' or 'orthographic': the solver parameter ``projection`` ('auto',
+    'orthographic' or 'perspective') for tracks given with intrinsics ``K`` (or None):
+    'auto' is perspective exactly when ``K`` is given."""
+    if projection == 'auto':
+        return 'orthographic' if K is None else 'perspective'
+    return projection

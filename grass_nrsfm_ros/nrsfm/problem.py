@@ -66,6 +66,7 @@ class SolverReport:
     notes: list = field(default_factory=list)    # automatic decisions worth knowing
     stages: list = field(default_factory=list)
     solves: list = field(default_factory=list)
+    perspective: dict = None                     # projection 'perspective': the iteration
 
     def to_dict(self):
         """The report as plain JSON types (numpy scalars as numbers, tuples as lists)."""

@@ -26,6 +26,8 @@ INEXTENSIBLE_MIN_POINTS = 100
 INEXTENSIBLE_RATIO = 0.6
 THINNING_MIN_POINTS = 100
 ROTATION_MARGIN = 0.10
+#: values of the solver parameter ``projection``
+PROJECTIONS = ('auto', 'orthographic', 'perspective')
 
 
 @dataclass(frozen=True)
@@ -177,6 +179,14 @@ SOLVER_PARAMS = (
           f'(P >= {THINNING_MIN_POINTS}), the shapes are solved on a thinned set and the '
           "dropped tracks filled in from their neighbours; 'never': every track is solved "
           '(a dense cluster whose own detail matters).'),
+    _mode('projection', 'auto', PROJECTIONS,
+          "How the tracks were imaged. 'orthographic': (scaled) orthographic projections, in "
+          "pixels or any unit; 'perspective': normalised pinhole coordinates K^-1 [u, v, 1], "
+          'solved by the projective-depth iteration around the whole chain (its rounds, depth '
+          'sign and stopping rule: docs/decisions/0700, 0702), shapes in the camera frame '
+          "projecting onto the tracks, each frame's mean depth 1; 'auto': perspective where "
+          'camera intrinsics come with the tracks (reconstruct with K or --camera), '
+          'orthographic otherwise.'),
     _number('rho', 1.2, 'Growth factor of the penalty beta per iteration: closer to 1 for a '
             'slower, more gradual schedule (more iterations).', 1.0, open_low=True),
     _number('beta0', 1e-3, 'Initial penalty beta (also of a resumed solve): lower lets the '

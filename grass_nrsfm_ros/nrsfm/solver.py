@@ -8,7 +8,11 @@ The chain (:meth:`GrassmannNRSfM.fit`): rotations -> rotation check -> the shape
 (:func:`shape_pass`: thinning -> ADMM -> refinement -> fill) -> registration (the shape pass
 again with registered rotations). The parameters are declared in :mod:`.schema`; each ADMM
 solve gets its own settings (:mod:`.config`), the validated parameters are never changed.
+With ``projection='perspective'`` ``W`` holds normalised pinhole coordinates and the whole
+chain runs inside the projective-depth iteration (:mod:`.perspective`); ``S`` is then in the
+camera frame, projecting onto ``W``, each frame's mean depth 1.
 """
+from dataclasses import replace
 import time
 
 import numpy as np
@@ -17,6 +21,7 @@ from threadpoolctl import ThreadpoolController
 from . import config
 from .admm import AdmmRun, AdmmState, run, Timer
 from .measurement import from_frames, InvalidInputError
+from .perspective import PerspectiveNRSfM
 from .problem import initial_shapes, NRSfMResult, Problem, SolverReport
 from .schema import SOLVER_PARAMS, SOLVER_SPECS, validate_solver
 from .stages import fill, refinement, registration, rotation_check, rotations, thinning
@@ -83,6 +88,8 @@ class GrassmannNRSfM:
         if beta_max is not None:
             values['beta_max'] = beta_max
         params = validate_solver(values)
+        if params['projection'] == 'perspective':
+            return self._perspective(W, init, progress, beta_max)
         with one_blas_thread():
             start, timer = time.perf_counter(), Timer()
             problem = Problem.from_tracks(W, init)
@@ -100,6 +107,18 @@ class GrassmannNRSfM:
                 result = self._registered(problem, params, result, progress)
             return result
 
+    def _perspective(self, W, init, progress, beta_max):
+        """``projection='perspective'``: the projective-depth iteration around this chain run
+        orthographically (``init`` starts its first solve only). The kept round's result with
+        ``S`` the camera-frame shapes, ``translation`` zero (``S`` projects onto ``W``) and
+        ``report.perspective`` the iteration's rounds."""
+        chain = _Rounds(GrassmannNRSfM(**{**self.get_params(), 'projection': 'orthographic'}),
+                        init=init, progress=progress, beta_max=beta_max)
+        outcome = PerspectiveNRSfM(chain).fit(W)
+        report = replace(outcome.result.report, perspective=outcome.report())
+        return replace(outcome.result, S=outcome.S, report=report,
+                       translation=np.zeros_like(outcome.result.translation))
+
     @staticmethod
     def _registered(problem, params, first, progress):
         """The stage 'registration': the shape pass again with the rotations registered to
@@ -113,6 +132,19 @@ class GrassmannNRSfM:
         second = shape_pass(again, R, params, report, timer, progress, reason='registration')
         report.seconds = dict(timer.seconds, total=time.perf_counter() - start)
         return registration.run(problem, params, first, second, time.perf_counter() - start)
+
+
+class _Rounds:
+    """The orthographic chain as :class:`.perspective.PerspectiveNRSfM` calls it: ``fit(W)``
+    with this fit's ``progress`` and ``beta_max`` every round, ``init`` on the first only."""
+
+    def __init__(self, solver, **kwargs):
+        self.solver, self.kwargs = solver, kwargs
+
+    def fit(self, W):
+        result = self.solver.fit(W, **self.kwargs)
+        self.kwargs = {**self.kwargs, 'init': None}
+        return result
 
 
 def shape_pass(problem, R, params, report, timer=None, progress=None, reason='shapes'):
