@@ -1,8 +1,12 @@
 """The reconstruction node: rclpy wiring around :class:`~grass_nrsfm_ros.pipeline.LivePipeline`.
 
-``tracks`` (PointCloud2: track_id, u, v per camera frame) in; ``points`` (every frame, tracked
-on arrival), ``points/refined`` (each frame once, from the windows behind), ``/diagnostics``
-and, with ``publish_mesh``, ``mesh`` (Marker TRIANGLE_LIST) out; service ``~/reset``.
+``tracks`` (PointCloud2: track_id, u, v per camera frame) and ``camera_info``
+(sensor_msgs/CameraInfo: the tracks' pinhole intrinsics, unless the ``camera`` parameter gives
+them) in; ``points`` (every frame, tracked on arrival), ``points/refined`` (each frame once,
+from the windows behind), ``/diagnostics`` and, with ``publish_mesh``, ``mesh`` (Marker
+TRIANGLE_LIST) out; service ``~/reset``. With intrinsics the points are the camera frame through
+the pinhole (:mod:`grass_nrsfm_ros.pipeline`); while a camera_info publisher is there but none
+has arrived, tracks are dropped (counted).
 
 Threads: a SingleThreadedExecutor runs the input callback (each frame tracked and published at
 once) and the housekeeping (docs/decisions/0039); with ``mapping: process`` the windows are
@@ -24,20 +28,21 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.duration import Duration
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.serialization import deserialize_message
-from sensor_msgs.msg import PointCloud2
+from sensor_msgs.msg import CameraInfo, PointCloud2
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 from threadpoolctl import threadpool_limits
 from visualization_msgs.msg import Marker
 
-from grass_nrsfm_ros import cloud, diagnostics, mesh, params, rates
+from grass_nrsfm_ros import cloud, diagnostics, image, mesh, params, rates
 from grass_nrsfm_ros.backends import fix_mmap_threshold
 from grass_nrsfm_ros.bag import offered_qos, Recorder
 from grass_nrsfm_ros.input_qos import InputSubscription
 from grass_nrsfm_ros.marker import mesh_marker
+from grass_nrsfm_ros.nrsfm.camera import ORTHOGRAPHIC_MESSAGE
 from grass_nrsfm_ros.pipeline import LATENCY_WINDOW, make_pipeline
 from grass_nrsfm_ros.ros_common import declare, spin, stamp_ns, to_stamp
 from grass_nrsfm_ros.windowing import FrameError
@@ -63,6 +68,9 @@ class ReconstructionNode(Node):
                                       notify=self._publish_refined, blas_threads=blas_threads,
                                       on_exit=self._on_mapping_exit)
         self.inline = config['mapping'] == 'inline'
+        self.pipeline.orthographic_warning = lambda: self.get_logger().warning(
+            ORTHOGRAPHIC_MESSAGE, once=True)
+        self.camera_fixed = bool(config['camera'])      # the parameter wins over camera_info
         self.counts = dict(messages=0, dropped_messages=0, dropped_windows=0, resets=0)
         self.last_solve, self.last_reset, self.last_frame_at = {}, '', None
         self.latencies = deque(maxlen=LATENCY_WINDOW)      # tracks received -> points sent
@@ -72,6 +80,8 @@ class ReconstructionNode(Node):
         self.input = InputSubscription(self, 'tracks', self._on_tracks_raw,
                                        config['input_reliability'], overrides=overrides,
                                        callback_group=MutuallyExclusiveCallbackGroup())
+        self.info_sub = self.create_subscription(CameraInfo, 'camera_info', self._on_camera_info,
+                                                 qos_profile_sensor_data)
         qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         self.points_pub = self.create_publisher(PointCloud2, 'points', qos,
                                                 qos_overriding_options=overrides)
@@ -106,6 +116,9 @@ class ReconstructionNode(Node):
         except Exception as exc:                      # malformed CDR or cloud: drop, go on
             return self._drop(f'bad tracks message ({type(exc).__name__}: {exc})')
         stamp = stamp_ns(msg.header.stamp)
+        if self.pipeline.camera is None and self.info_sub.get_publisher_count():
+            return self._drop(f'tracks at {stamp} ns before the first camera_info from '
+                              f'{self.info_sub.topic_name}')
         if tracks.ids.size == 0:
             return self._drop(f'empty tracks cloud at {stamp} ns (no finite points)')
         invalid = int(msg.width) * int(msg.height) - tracks.ids.size
@@ -125,6 +138,23 @@ class ReconstructionNode(Node):
         self.latencies.append(time.monotonic() - received)
         if self.inline:
             self._publish_refined()
+
+    def _on_camera_info(self, msg):
+        """Intrinsics of the tracks: a change starts a new sequence (the normalised points
+        change); ignored while the ``camera`` parameter gives them."""
+        if self.camera_fixed:
+            return
+        try:
+            camera = image.camera_from_info(msg)
+        except image.CameraError as exc:
+            self.get_logger().warning(f'camera_info ignored: {exc}',
+                                      throttle_duration_sec=LOG_PERIOD_S)
+            return
+        if camera is not None and self.pipeline.set_camera(camera.K):
+            K = camera.K
+            self.get_logger().info(f'camera_info: fx {K[0, 0]:g}, fy {K[1, 1]:g}, cx '
+                                   f'{K[0, 2]:g}, cy {K[1, 2]:g}: points through the pinhole, '
+                                   'a new sequence')
 
     def _drop(self, reason):
         """Count a dropped message; each kind of reason (its text, numbers and quoted names
@@ -270,6 +300,8 @@ class ReconstructionNode(Node):
         for p in changed:
             if p.name == 'metres_per_pixel':
                 self.pipeline.metres_per_pixel = float(p.value)
+            elif p.name == 'scene_depth':
+                self.pipeline.scene_depth = float(p.value)
             elif p.name == 'frame_id':
                 self.frame_id = str(p.value)
         return SetParametersResult(successful=True)

@@ -20,6 +20,7 @@ import textwrap
 
 import yaml
 
+from grass_nrsfm_ros.nrsfm.camera import intrinsics
 from grass_nrsfm_ros.nrsfm.schema import Param, SOLVER_PARAMS, validate_solver
 
 NODE_NAME = 'grass_nrsfm'
@@ -94,8 +95,18 @@ NODE_PARAMS = (
           'frame_id of the output clouds (the camera optical frame); empty: the input '
           "cloud's frame_id.", read_only=False),
     Param('metres_per_pixel', 1.0, float,
-          'Scale from pixels to output units (x, y, z are all multiplied by it).',
-          range=(1e-12, 1e12), read_only=False),
+          'Without camera intrinsics: scale from pixels to output units (x, y, z are all '
+          'multiplied by it).', range=(1e-12, 1e12), read_only=False),
+    Param('camera', [], list,
+          'Pinhole intrinsics [fx, fy, cx, cy] (pixels) of the tracks; they win over '
+          'camera_info. Empty: those of the camera_info topic (sensor_msgs/CameraInfo), or '
+          'none: the pixels are solved as orthographic projections (warned once). With them '
+          "the output is the camera frame through the pinhole, each frame's mean depth "
+          'scene_depth.'),
+    Param('scene_depth', 1.0, float,
+          "With camera intrinsics: each frame's mean depth in output units (the monocular "
+          'scale is unknown: the distance from the camera to the surface in metres gives '
+          'metres).', range=(1e-12, 1e12), read_only=False),
     Param('record_path', '', str,
           'rosbag2 (MCAP) directory recording the input tracks and output points; empty: '
           'off.'),
@@ -173,6 +184,24 @@ def _check_stride(values):
                          f"window_size={values['window_size']}")
 
 
+def check_camera(value):
+    """``camera`` as a list of 0 or 4 floats ``[fx, fy, cx, cy]`` (None, as rclpy gives an
+    unset array, is empty); ValueError unless finite with fx, fy > 0."""
+    values = [] if value is None else list(value)
+    if values and (len(values) != 4 or any(isinstance(v, (bool, str)) for v in values)):
+        raise ValueError(f'camera={values!r}: expected [fx, fy, cx, cy] (4 numbers) or []')
+    values = [float(v) for v in values]
+    if values and not (all(math.isfinite(v) for v in values) and min(values[:2]) > 0):
+        raise ValueError(f'camera={values}: needs finite numbers and fx, fy > 0')
+    return values
+
+
+def camera_matrix(camera):
+    """``K: (3, 3)`` of ``camera`` ``[fx, fy, cx, cy]``."""
+    fx, fy, cx, cy = check_camera(camera)
+    return intrinsics(fx, fy, cx, cy)
+
+
 def validate(values):
     """Check ``{name: value}`` against the schema; returns converted values or raises
     ValueError naming the parameter (and the closest known name for a typo)."""
@@ -183,7 +212,7 @@ def validate(values):
             close = difflib.get_close_matches(name, specs, n=1)
             hint = f'; did you mean {close[0]!r}?' if close else ''
             raise ValueError(f'unknown parameter {name!r}{hint}')
-        out[name] = specs[name].check(value)
+        out[name] = check_camera(value) if name == 'camera' else specs[name].check(value)
     _check_stride(out)
     validate_solver(solver_kwargs(out))
     return out

@@ -13,10 +13,17 @@ shape_tracking` (each frame fitted to the newest model), :mod:`~grass_nrsfm_ros.
 the :mod:`~grass_nrsfm_ros.mapper` solves), :mod:`~grass_nrsfm_ros.refinement` (what goes out on
 ``points/refined``). Pure Python and numpy: no ROS.
 
+Camera intrinsics (:meth:`LivePipeline.set_camera`, ``K: (3, 3)``): each frame's pixels become
+normalised coordinates ``K^-1 [u, v, 1]`` on arrival, the rooms behind work on those, and each
+FrameResult goes out through the pinhole (:func:`pinhole_points`): depth ``Z = scene_depth (1 +
+z)`` from the reconstruction's centred depth ``z`` (normalised units), ``X, Y = Z x, Z y``, so
+``K [X/Z, Y/Z, 1]`` is the frame's pixels and each frame's mean depth is ``scene_depth``.
+Without ``K`` the pixels are solved as orthographic projections (warned once).
+
 Shapes: ``ids: (P,)`` track ids, ``uv: (P, 2)`` pixels; a FrameResult's ``xyz: (P, 3)`` in the
-camera frame times ``metres_per_pixel``.
+camera frame: pinhole as above with ``K``, else times ``metres_per_pixel``.
 """
-from collections import deque
+from collections import deque, OrderedDict
 from dataclasses import replace
 import threading
 import time
@@ -26,12 +33,26 @@ import numpy as np
 from grass_nrsfm_ros import params
 from grass_nrsfm_ros.backends import InlineBackend, ProcessBackend
 from grass_nrsfm_ros.mapper import make_mapper, refined_after_of
+from grass_nrsfm_ros.nrsfm.camera import validate_intrinsics, warn_orthographic
+from grass_nrsfm_ros.nrsfm.perspective import MIN_RELATIVE_DEPTH
 from grass_nrsfm_ros.refinement import Refinement
 from grass_nrsfm_ros.shape_tracking import ShapeTracking
-from grass_nrsfm_ros.windowing import Windowing
+from grass_nrsfm_ros.windowing import FrameError, Windowing
 
 #: tracking latencies kept for the percentiles
 LATENCY_WINDOW = 300
+#: with K: frames whose normalised points are kept for the output (a frame's are dropped once
+#: it is refined; this bounds frames never refined)
+RAYS_KEPT = 1000
+
+
+def pinhole_points(xyz, rays, scene_depth=1.0):
+    """``(P, 3)`` camera-frame points through the pinhole: ``Z = scene_depth * (1 + z)`` (at
+    least MIN_RELATIVE_DEPTH of it), ``X, Y = Z * rays``, from a reconstruction ``xyz: (P, 3)``
+    of normalised points (``z``: depth relative to the frame's centroid, normalised units)
+    and the points' normalised coordinates ``rays: (P, 2)``."""
+    Z = scene_depth * np.maximum(1.0 + xyz[:, 2], MIN_RELATIVE_DEPTH)
+    return np.column_stack([rays * Z[:, None], Z])
 
 
 class LivePipeline:
@@ -42,10 +63,15 @@ class LivePipeline:
     ``add_frame`` raises :class:`~grass_nrsfm_ros.windowing.FrameError` for a refused frame.
     """
 
-    def __init__(self, windowing, tracking, refinement, backend, *, metres_per_pixel=1.0):
+    def __init__(self, windowing, tracking, refinement, backend, *, metres_per_pixel=1.0,
+                 camera=None, scene_depth=1.0, projection='auto'):
         self.windowing, self.tracking = windowing, tracking
         self.refinement, self.backend = refinement, backend
         self.metres_per_pixel = float(metres_per_pixel)
+        self.scene_depth, self.projection = float(scene_depth), projection
+        self.camera = None if camera is None else validate_intrinsics(camera)
+        self._rays = OrderedDict()      # with K: stamp -> (ids, normalised uv) until refined
+        self.orthographic_warning = warn_orthographic      # said once: pixels without K
         self.latencies = deque(maxlen=LATENCY_WINDOW)
         self._surprised = False         # the last frame asked for a fresh window
         self._lock = threading.Lock()   # the refinement: tracking and publishing threads
@@ -53,7 +79,7 @@ class LivePipeline:
     def add_frame(self, stamp_ns, ids, uv, frame_id=''):
         """Track one frame and hand it on: ``(FrameResult,)`` to publish on ``points``."""
         started = time.perf_counter()
-        frame = self.windowing.accept(stamp_ns, ids, uv, frame_id)
+        frame = self._normalised(self.windowing.accept(stamp_ns, ids, uv, frame_id))
         tracked = self.tracking.track(frame)
         if tracked.depth is not None:
             frame = replace(frame, depth=tracked.depth)
@@ -65,6 +91,19 @@ class LivePipeline:
         self.latencies.append(time.perf_counter() - started)   # the tracking, not a solve
         self._submit(windows)
         return (self._scaled(tracked.result),)
+
+    def set_camera(self, K):
+        """Use intrinsics ``K: (3, 3)`` (None: none) from the next frame on. A change of
+        intrinsics starts a new sequence (:meth:`reset`); returns True where it did."""
+        K = None if K is None else validate_intrinsics(K)
+        same = (K is None and self.camera is None) or (
+            K is not None and self.camera is not None and np.allclose(K, self.camera,
+                                                                      rtol=1e-9, atol=0.0))
+        if same:
+            return False
+        self.camera = K
+        self.reset()
+        return True
 
     def flush(self):
         """Close the last window of the buffered frames (end of a bag, or a pause)."""
@@ -80,7 +119,7 @@ class LivePipeline:
             if update.model is not None:
                 self.tracking.offer(update.sequence, update.model)
             with self._lock:
-                out += [self._scaled(r) for r in self.refinement.take(update)]
+                out += [self._scaled(r, refined=True) for r in self.refinement.take(update)]
         return out, updates
 
     def reset(self):
@@ -88,6 +127,7 @@ class LivePipeline:
         a new sequence. Returns ``{'frames': buffered frames dropped, 'model': whether there
         was one}``."""
         frames = self.windowing.reset()
+        self._rays.clear()
         had_model = self.tracking.reset()
         self.backend.reset()
         self._surprised = False
@@ -118,18 +158,53 @@ class LivePipeline:
                 self.refinement.expect(window)
             self.backend.submit(window)
 
-    def _scaled(self, result):
-        return replace(result, xyz=result.xyz * self.metres_per_pixel)
+    def _normalised(self, frame):
+        """The accepted ``frame`` in normalised coordinates (its rays kept for the output) with
+        ``K``; as it is without (warned once), or refused where the solver's projection is
+        'perspective' (it needs ``K``)."""
+        if self.camera is None:
+            if self.projection == 'perspective':
+                raise FrameError("solver.projection 'perspective' needs camera intrinsics (the "
+                                 'camera parameter or a camera_info topic); none yet')
+            self.orthographic_warning()
+            return frame
+        K = self.camera
+        y = (frame.uv[:, 1] - K[1, 2]) / K[1, 1]
+        x = (frame.uv[:, 0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
+        frame = replace(frame, uv=np.column_stack([x, y]))
+        self._rays[frame.stamp_ns] = (frame.ids, frame.uv)
+        while len(self._rays) > RAYS_KEPT:
+            self._rays.popitem(last=False)
+        return frame
+
+    def _scaled(self, result, refined=False):
+        """``result`` in output units: through the pinhole (:func:`pinhole_points`) where its
+        frame came with ``K``, else times ``metres_per_pixel``."""
+        rays = self._rays.get(result.stamp_ns)
+        if rays is None:
+            return replace(result, xyz=result.xyz * self.metres_per_pixel)
+        if refined:
+            self._rays.pop(result.stamp_ns)
+        ids, uv = rays
+        at = np.searchsorted(ids, result.ids)
+        return replace(result, xyz=pinhole_points(result.xyz, uv[at], self.scene_depth))
 
 
 def make_pipeline(config, solver_factory=None, *, mapping='inline', notify=None, on_exit=None,
-                  blas_threads=1):
+                  blas_threads=1, camera=None):
     """The LivePipeline ``config`` describes (parameters as from
     :func:`grass_nrsfm_ros.params.load_config` or the node; absent keys take their defaults),
     its windows solved ``mapping`` 'inline' or in a 'process' (``notify``, ``on_exit``,
     ``blas_threads``: see :class:`~grass_nrsfm_ros.backends.ProcessBackend`).
-    ``solver_factory`` replaces ``GrassmannNRSfM(**solver parameters)``."""
+    ``solver_factory`` replaces ``GrassmannNRSfM(**solver parameters)``. Intrinsics:
+    ``camera`` (``K: (3, 3)``), else the ``camera`` parameter ([fx, fy, cx, cy] or []), else
+    none (:meth:`LivePipeline.set_camera` sets them later). The windows are solved with the
+    solver's ``projection``: 'auto' solves orthographically (on the normalised points with
+    ``K``; the depth correction through the pinhole applies to every frame); 'perspective'
+    runs the projective-depth iteration in every window (docs/decisions/0703)."""
     config = {**params.defaults(), **config}
+    if camera is None and config['camera']:
+        camera = params.camera_matrix(config['camera'])
     if mapping == 'process':
         backend = ProcessBackend(config, solver_factory, notify=notify, on_exit=on_exit,
                                  blas_threads=blas_threads)
@@ -138,7 +213,9 @@ def make_pipeline(config, solver_factory=None, *, mapping='inline', notify=None,
     return LivePipeline(Windowing(**{k: config[k] for k in params.WINDOW_KEYS}),
                         ShapeTracking(config['residual_limit']),
                         Refinement(refined_after_of(config)), backend,
-                        metres_per_pixel=config['metres_per_pixel'])
+                        metres_per_pixel=config['metres_per_pixel'], camera=camera,
+                        scene_depth=config['scene_depth'],
+                        projection=config['solver.projection'])
 
 
 def live_events(pipeline, frames, refuse=()):

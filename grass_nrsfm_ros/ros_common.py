@@ -19,7 +19,7 @@ def descriptor(spec):
     """ParameterDescriptor for a :class:`grass_nrsfm_ros.nrsfm.schema.Param` (range, read-only,
     typing)."""
     d = ParameterDescriptor(description=spec.description, read_only=spec.read_only,
-                            dynamic_typing=spec.type is None)
+                            dynamic_typing=spec.type in (None, list))
     if spec.range is not None and spec.type is int:
         d.integer_range = [IntegerRange(from_value=int(spec.range[0]),
                                         to_value=int(spec.range[1]), step=1)]
@@ -30,9 +30,12 @@ def descriptor(spec):
 
 
 def declare(node, specs):
-    """Declare every Param of ``specs`` on ``node``; ``{name: value}`` as given."""
-    return {spec.name: node.declare_parameter(spec.name, spec.default, descriptor(spec)).value
-            for spec in specs}
+    """Declare every Param of ``specs`` on ``node``; ``{name: value}`` as given. A list
+    parameter with an empty default is declared unset (rclpy cannot type an empty list):
+    its value is then None."""
+    return {spec.name: node.declare_parameter(
+        spec.name, None if spec.type is list and not spec.default else spec.default,
+        descriptor(spec)).value for spec in specs}
 
 
 def stamp_ns(stamp):

@@ -8,7 +8,8 @@ request), in one namespace.
 
 The tracker subscribes ``image`` and ``camera_info`` (remapped by the arguments; relative names
 resolve inside ``namespace``) and publishes ``tracks``, which the reconstruction node reads in
-the same namespace; it publishes ``points`` and ``points/refined`` there. Several cameras: one
+the same namespace with the same ``camera_info`` (its points then in the camera frame through
+the pinhole); it publishes ``points`` and ``points/refined`` there. Several cameras: one
 launch per camera, each in its own namespace, over one ROS domain. ``tracker_params_file`` and
 ``params_file`` default to the installed ``config/tracker.yaml`` and ``config/params.yaml``.
 ``dds_profile`` (``FASTRTPS_DEFAULT_PROFILES_FILE`` of what this launch starts) defaults to that
@@ -55,7 +56,8 @@ def generate_launch_description():
                    remappings=[('image', LaunchConfiguration('image')),
                                ('camera_info', LaunchConfiguration('camera_info'))])
     node = Node(package=PACKAGE, executable='node', name='grass_nrsfm', namespace=namespace,
-                output='screen', parameters=[LaunchConfiguration('params_file')])
+                output='screen', parameters=[LaunchConfiguration('params_file')],
+                remappings=[('camera_info', LaunchConfiguration('camera_info'))])
     rviz = Node(package='rviz2', executable='rviz2', name='rviz2', output='screen',
                 arguments=['-d', PathJoinSubstitution([share, 'config', 'grass_nrsfm.rviz'])],
                 condition=IfCondition(LaunchConfiguration('rviz')))

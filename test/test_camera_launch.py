@@ -59,7 +59,8 @@ def test_camera_launch_chains_tracker_and_node_in_one_namespace(stubbed):
     assert tracker['namespace'] == node['namespace'] == config('namespace')
     assert dict(tracker['remappings']) == {'image': config('image'),
                                            'camera_info': config('camera_info')}
-    assert 'remappings' not in node        # 'tracks' is the tracker's output, in the namespace
+    # 'tracks' is the tracker's output, in the namespace; the intrinsics are the tracker's
+    assert dict(node['remappings']) == {'camera_info': config('camera_info')}
     assert tracker['parameters'] == [config('tracker_params_file')]
     assert node['parameters'] == [config('params_file')]
     assert nodes['rviz2']['condition'] == stubbed['IfCondition'](config('rviz'))

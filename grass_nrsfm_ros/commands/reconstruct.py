@@ -14,7 +14,10 @@ input whose ``visible: (F, P)`` marks entries as unobserved is refused, unless
 ``points``, which ``evaluate`` uses). A bag directory or
 ``.mcap``/``.bag`` file runs the node's live pipeline offline (each window solved inline as it
 closes) and writes an output bag (there, each window uses the tracks it sees throughout):
-:func:`reconstruct_bag`, which the demo uses too, owns that offline run.
+:func:`reconstruct_bag`, which the demo uses too, owns that offline run. The bag's intrinsics
+come from ``--camera`` or its CameraInfo topic (``--camera-info-topic``, or the sibling
+``camera_info`` of the tracks topic, or its only one); ``--scale`` is then the output's
+``scene_depth``.
 """
 from collections import Counter
 from dataclasses import dataclass, field
@@ -31,6 +34,7 @@ from grass_nrsfm_ros import bag
 from grass_nrsfm_ros.cli import UserError
 from grass_nrsfm_ros.cloud import CloudError, decode_tracks
 from grass_nrsfm_ros.commands.npz import complete_tracks, load_camera, load_tracks
+from grass_nrsfm_ros.frontend.sources import bag_camera, SourceError
 from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM
 from grass_nrsfm_ros.nrsfm.camera import (intrinsics, normalise, resolved_projection,
                                           warn_orthographic)
@@ -44,6 +48,9 @@ def add_arguments(parser):
     parser.add_argument('-o', '--output', required=True, help='output .npz (or bag directory)')
     parser.add_argument('--config', help="params.yaml (the node's file works too)")
     parser.add_argument('--topic', default='/tracks', help='tracks topic when IN is a bag')
+    parser.add_argument('--camera-info-topic',
+                        help="a bag's CameraInfo topic (default: the tracks topic's sibling "
+                             'camera_info, or the only one)')
     parser.add_argument('--quiet', action='store_true', help='no progress display')
     parser.add_argument('--camera', type=float, nargs=4, metavar=('FX', 'FY', 'CX', 'CY'),
                         help='pinhole intrinsics of the pixel tracks (pixels; overrides the '
@@ -126,13 +133,36 @@ def chosen_camera(args):
         raise UserError(f'--camera: {exc}') from None
 
 
+def chosen_bag_camera(args):
+    """``(K: (3, 3) or None, where it came from)`` of ``--camera`` or the bag's
+    camera_info."""
+    if args.camera is not None:
+        try:
+            return intrinsics(*args.camera), 'from --camera'
+        except InvalidInputError as exc:
+            raise UserError(f'--camera: {exc}') from None
+    try:
+        camera, topic = bag_camera(args.input, args.topic, args.camera_info_topic)
+    except SourceError as exc:
+        raise UserError(str(exc)) from None
+    if camera is None:
+        return None, None
+    return camera.K, f'from the bag topic {topic}'
+
+
+def check_scale(scale):
+    """``--scale`` if a finite number > 0, else UserError."""
+    if not (np.isfinite(scale) and scale > 0):
+        raise UserError(f'--scale {scale}: expected a finite number > 0')
+    return float(scale)
+
+
 def solved_tracks(W, K, solver, scale):
     """``(W_solved: (2F, P), projection)``: the tracks as the solver takes them (normalised
     with K under the perspective model) and the projection resolved (the solver's parameter
     set to it); warns once where pixels are solved without K."""
     projection = resolved_projection(solver.projection, K)
-    if not (np.isfinite(scale) and scale > 0):
-        raise UserError(f'--scale {scale}: expected a finite number > 0')
+    check_scale(scale)
     if projection == 'orthographic' and scale != 1.0:
         raise UserError('--scale applies to the perspective model (with K)')
     solver.set_params(projection=projection)
@@ -295,7 +325,14 @@ def reconstruct_bag_file(args):
     if args.topic not in known:
         raise bag.TopicNotFoundError(f'bag {args.input} has no topic {args.topic!r} (topics: '
                                      f'{", ".join(sorted(known)) or "none"})')
-    pipeline = make_pipeline(config)                    # inline: the output is reproducible
+    camera, where = chosen_bag_camera(args)
+    if camera is not None:
+        config['scene_depth'] = check_scale(args.scale)
+        print(f"{args.input}: K {where}: points in the camera frame, each frame's mean depth "
+              f'{args.scale:g}')
+    elif args.scale != 1.0:
+        raise UserError('--scale applies to the perspective model (with K)')
+    pipeline = make_pipeline(config, camera=camera)     # inline: the output is reproducible
     out = Path(args.output)
     existed = out.exists()
     try:

@@ -312,6 +312,24 @@ def _image_topic(path, connections, wanted):
     return images[0]
 
 
+def bag_camera(path, topic, wanted=None):
+    """``(Camera or None, camera_info topic or None)`` of a bag: the first calibrated message
+    of the CameraInfo topic that goes with ``topic`` (see :func:`_info_topic`); unreadable
+    messages are passed over."""
+    with BagReader(path) as bag:
+        info = _info_topic(path, bag.reader.connections, topic, wanted)
+        if info is None:
+            return None, None
+        for conn, _, raw in bag.messages(bag.connections(info, CAMERA_INFO)):
+            try:
+                camera = image_io.camera_from_info(bag.decode(raw, conn))
+            except (image_io.CameraError, BagError):
+                continue
+            if camera is not None:
+                return camera, info
+    return None, info
+
+
 def _info_topic(path, connections, image_topic, wanted):
     """The camera_info topic that goes with ``image_topic``: ``wanted``, the sibling
     ``camera_info`` of the image topic, or the bag's only CameraInfo topic; None if none."""
