@@ -28,8 +28,10 @@ TRACKER_PARAMS = (
           'Grid step in pixels: tracks start on the points of a grid of this spacing inside '
           'the region (step 2 on 640 x 480: up to 76,800 tracks).', range=(1, 1024)),
     Param('method', DEFAULT_METHOD, str,
-          'Optical flow from the reference frame to each frame: a DIS preset, optionally '
-          'refined per track by Lucas-Kanade (+lk), or pyramidal Lucas-Kanade alone.',
+          'Optical flow: a DIS preset from the last frame predicts each track; +lk refines '
+          'it by Lucas-Kanade against its keyframe in the frame warped by the field of the '
+          'tracks (/prev+lk: without the warp); a bare DIS preset chains (it drifts); lk '
+          'predicts nothing and refines by pyramidal Lucas-Kanade.',
           choices=METHODS),
     Param('mask', '', str,
           'PNG file whose non-zero pixels are the region to track in the first frame (same '
@@ -38,8 +40,9 @@ TRACKER_PARAMS = (
           'Rectangle [x0, y0, x1, y1] in pixels (bounds included) to track in, fixed in the '
           'image; with a mask, the mask cut to it. Empty: the whole image.'),
     Param('min_zncc', 0.8, float,
-          'A track dies when its 7 x 7 patch correlates (ZNCC) less than this with its '
-          'reference patch (occlusion, a failed track).', range=(-1.0, 1.0)),
+          'A track fails when its 11 x 11 patch correlates (ZNCC) less than this with its '
+          'keyframe patch (occlusion, a lost track): it is hidden, and dies when it fails '
+          'again in the next frame.', range=(-1.0, 1.0)),
     Param('publish_age', True, bool,
           'Add an age field (UINT32, frames since the track was born) to each tracks cloud '
           'besides track_id, u and v.'),
@@ -115,7 +118,7 @@ def render_yaml():
              '# it to the tracker in any namespace.',
              f'{FILE_KEY}:', '  ros__parameters:']
     for p in TRACKER_PARAMS:
-        lines += textwrap.wrap(f'{p.description} [{p.constraint}]', 99,
+        lines += textwrap.wrap(f'{p.description} [{p.constraint}]', 99, break_on_hyphens=False,
                                initial_indent='    # ', subsequent_indent='    # ')
         lines.append(f'    {p.name}: {_yaml_value(p.default)}')
     return '\n'.join(lines) + '\n'

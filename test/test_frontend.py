@@ -117,6 +117,36 @@ def test_occluded_tracks_fail_the_check():
     assert (inside & np.isin(out.ids, first.ids)).sum() < 0.05 * (120 // 8) ** 2
 
 
+@pytest.mark.parametrize('max_misses', [0, 1])
+def test_a_track_failing_once_is_hidden_and_dies_on_the_next_failure(max_misses):
+    """A small patch occluded in one frame: its tracks fail, are hidden (not output) and
+    come back with their ids where it is seen again (``max_misses`` 1), or die at once
+    (0)."""
+    base = texture()
+    tracker = DenseTracker(step=8, max_misses=max_misses)
+    first = tracker.track(shifted(base, 0, 0))
+    occluded = shifted(base, 1, 1)
+    occluded[90:150, 130:190] = shifted(texture(seed=5), 0, 0)[90:150, 130:190]
+    hidden = tracker.track(occluded)
+    inside = (first.uv[:, 0] > 140) & (first.uv[:, 0] < 180) & (first.uv[:, 1] > 100) & \
+        (first.uv[:, 1] < 140)
+    assert inside.sum() >= 16 and not np.isin(first.ids[inside], hidden.ids).any()
+    assert hidden.counts['failed'] >= inside.sum()
+    assert hidden.counts['missed'] == (hidden.counts['failed'] if max_misses else 0)
+    seen = tracker.track(shifted(base, 2, 2))
+    back = np.isin(first.ids[inside], seen.ids).mean()
+    if max_misses:
+        assert back > 0.95 and seen.counts['missed'] == 0
+        err = np.linalg.norm(np.array([by_id(seen)[i] for i in first.ids[inside].tolist()])
+                             - (first.uv[inside] - 2), axis=1)
+        assert np.median(err) < 0.1 and err.max() < 0.5
+        tracker.track(occluded)
+        tracker.track(occluded)
+        assert not np.isin(first.ids[inside], tracker.track(shifted(base, 2, 2)).ids).any()
+    else:
+        assert back == 0
+
+
 def test_region_rectangle_and_mask():
     base = texture()
     roi = DenseTracker(step=4, region=(100, 50, 199, 149)).track(shifted(base, 0, 0))
@@ -210,7 +240,8 @@ def test_size_change_is_a_clear_error_and_reset_recovers():
                                     dict(region=np.zeros((4, 4), bool)),
                                     dict(region=np.ones((4, 4))), dict(min_zncc=2),
                                     dict(lk_window=4), dict(reanchor_every=0),
-                                    dict(K=np.eye(2)), dict(channel_order='rgba')])
+                                    dict(K=np.eye(2)), dict(channel_order='rgba'),
+                                    dict(max_misses=-1), dict(max_misses=0.5)])
 def test_bad_parameters_are_named(kwargs):
     name = next(iter(kwargs))
     with pytest.raises(ValueError, match=name.split('_')[0]):

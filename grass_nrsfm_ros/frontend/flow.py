@@ -6,21 +6,24 @@ against it in every frame, so its error does not grow frame by frame:
 
 1. prediction: DIS optical flow from the last frame moves each track (in the box around the
    tracks);
-2. refinement, per keyframe: the current frame, locally normalised (mean removed, contrast
-   equalised: blind to shading gain and offset), is warped into the keyframe by the smooth
+2. refinement, per keyframe: the current frame is warped into the keyframe by the smooth
    displacement field of that keyframe's predicted tracks (so the turn and deformation since
-   the keyframe are undone), and Lucas-Kanade from the normalised keyframe measures what the
-   field missed at each track; then the other way round (the keyframe warped into the frame,
-   LK from it to the frame), and the track is the mean of the two estimates;
+   the keyframe are undone), then locally normalised (mean removed, contrast equalised:
+   blind to shading gain and offset; in the keyframe's geometry, like the keyframe), and
+   Lucas-Kanade from the normalised keyframe measures what the field missed at each track;
+   then the other way round (the keyframe warped into the frame and normalised there, LK
+   from it to the normalised frame), and the track is the mean of the two estimates; a
+   track whose check (3) is weak leans on the smooth field of its neighbours' moves;
 3. checks: a ZNCC of each track's patch against its keyframe patch, taken in the warped frame
    on slightly blurred images (optionally a forward-backward check); occlusion shows up as a
-   failed check.
+   failed check. A track that fails is hidden (not in the output, kept on its keyframe,
+   moved by the prediction) and dies when it fails ``max_misses`` + 1 frames in a row.
 
 A track whose patch has changed (ZNCC below ``reanchor_zncc``) is *stale*: when enough
 tracks are stale, the frame becomes a keyframe and they (with ``max_keyframes`` 1, the
 default: every track) are re-anchored to it, keeping their ids. When too much
 of the region has no track, the frame becomes a keyframe and new tracks are born on the
-region's uncovered grid cells. A track dies when it leaves the image or fails a check. Ids are
+region's uncovered grid cells. A track dies when it leaves the image or fails its checks. Ids are
 never reused within a sequence (until :meth:`reset`).
 
 Shapes and units:
@@ -74,12 +77,13 @@ _LK_ITERATIONS = 5                 # LK stops after this many steps, or a step u
 _LK_EPS = 0.03                     # px
 _INVERSE_STEPS = 3                 # fixed-point steps inverting the field
 _CHECK_SIGMA = 1.0                 # px: blur of both sides of the ZNCC check
+_SMOOTH_ZNCC = 0.98              # a track checked below this leans on its neighbours' field
 _NORM_SIGMA = 4.0                  # px: windows of the local normalisation before LK
 
 
 @dataclass(frozen=True, eq=False)
 class _Keyframe:
-    """A frame tracks are anchored to: ``grey (H, W) uint8``, its :func:`_normalise` and
+    """A frame tracks are anchored to: ``grey (H, W) float32``, its :func:`_normalise` and
     that :func:`_smoothed` (where the ZNCC check samples)."""
 
     grey: np.ndarray
@@ -89,11 +93,12 @@ class _Keyframe:
 
 @dataclass(frozen=True, eq=False)
 class _Crop:
-    """A box of a frame: ``image (h, w)`` whose pixel (0, 0) is the frame's ``origin
-    (x0, y0)`` (float32)."""
+    """A box of a frame: ``image (h, w)`` (normalised) and ``raw (h, w)`` float32 grey,
+    whose pixel (0, 0) is the frame's ``origin (x0, y0)`` (float32)."""
 
     image: np.ndarray
     origin: np.ndarray
+    raw: np.ndarray = None
 
 
 class FrameSizeError(ValueError):
@@ -105,9 +110,11 @@ class TrackFrame:
     """The tracks alive in one frame.
 
     ``ids: (P,) uint32``, ``uv: (P, 2) float64`` pixels, ``age: (P,) int64`` frames since
-    each track was born; ``counts``: 'alive', 'born', 'lost' (died this frame: 'left' the
-    image or 'failed' a check), 'failed', 'left', 'reanchored' (1 when this frame became a
-    keyframe), 'blank' (1 for a blank frame, which has no tracks); ``K: (3, 3)`` or None.
+    each track was born; ``counts``: 'alive', 'born', 'lost' (died this frame: left the
+    image or failed its checks ``max_misses`` + 1 frames in a row), 'failed' (failed a check
+    this frame), 'missed' (of those, hidden this frame but kept), 'left', 'reanchored' (1
+    when this frame became a keyframe), 'blank' (1 for a blank frame, which has no tracks);
+    ``K: (3, 3)`` or None.
     """
 
     ids: np.ndarray
@@ -133,8 +140,10 @@ class DenseTracker:
     intrinsics ``(3, 3)`` carried into each :class:`TrackFrame`.
 
     Checks: ``min_zncc`` (a track whose 11 x 11 normalised patch correlates less than this
-    with its keyframe patch, in the warped frame, dies), ``fb_max_px`` (forward-backward
-    distance above which a track dies; None: no forward-backward check). Keyframes: a track
+    with its keyframe patch, in the warped frame, fails), ``fb_max_px`` (forward-backward
+    distance above which a track fails; None: no forward-backward check), ``max_misses``
+    (int >= 0: a failed track is hidden, and dies when it fails this many frames more in a
+    row; it is not re-anchored while hidden). Keyframes: a track
     is stale when its ZNCC is below ``reanchor_zncc``; the frame becomes a keyframe (stale
     tracks re-anchored to it) when more than 2 % of the tracks are stale, when more than
     ``reanchor_uncovered`` of the region's grid cells hold no track (a grid point is
@@ -150,12 +159,13 @@ class DenseTracker:
     """
 
     def __init__(self, step=4, region=None, method=DEFAULT_METHOD, *, K=None, min_zncc=0.8,
-                 fb_max_px=None, reanchor_zncc=0.88, reanchor_uncovered=0.1,
+                 fb_max_px=None, reanchor_zncc=0.9, reanchor_uncovered=0.1,
                  reanchor_every=None, min_texture=2.0, lk_window=9, lk_levels=None,
-                 channel_order='rgb', blank_std=2.0, max_keyframes=1):
+                 channel_order='rgb', blank_std=2.0, max_keyframes=1, max_misses=1):
         _check_parameters(step, method, channel_order, min_zncc, reanchor_zncc,
                           reanchor_uncovered, min_texture, blank_std, fb_max_px, reanchor_every,
-                          lk_window, max_keyframes, lk_levels)
+                          lk_window, max_keyframes, lk_levels, max_misses)
+        self.max_misses = int(max_misses)
         self.step = int(step)
         self.method = method
         self.region = _validate_region(region)
@@ -186,6 +196,7 @@ class DenseTracker:
         self._keyframes = {}          # frame number -> _Keyframe
         self._shape = None            # (H, W) of the sequence
         self._region_ref = None       # (H, W) bool region at the newest keyframe
+        self._cells = np.zeros((0, 2), np.int64)    # (G, 2) its grid points
         self._last = None             # (H, W) uint8 last frame tracked
         self._step_flow = None        # (h, w, 2) float32 DIS flow last -> current frame, a box
         self._ids = np.zeros(0, np.uint32)
@@ -194,6 +205,7 @@ class DenseTracker:
         self._ref_patches = np.zeros((0, len(_OFFSETS)), np.float32)   # (P, n) zero-mean
         self._uv = np.zeros((0, 2), np.float64)
         self._born = np.zeros(0, np.int64)
+        self._misses = np.zeros(0, np.int64)                        # (P,) failed checks in a row
         self._frame = -1
         self._newest_key = -1
         self._uint16_shift = None
@@ -207,7 +219,8 @@ class DenseTracker:
                 f'frame {self._frame} is {grey.shape[1]} x {grey.shape[0]} pixels but the '
                 f'sequence is {self._shape[1]} x {self._shape[0]}; call reset() to '
                 f'start a new sequence at the new size')
-        counts = dict(alive=0, born=0, lost=0, failed=0, left=0, reanchored=0, blank=0)
+        counts = dict(alive=0, born=0, lost=0, failed=0, missed=0, left=0, reanchored=0,
+                      blank=0)
         spread = float(grey[::4, ::4].std())
         if spread < self.blank_std:
             self._warn_once('blank', f'blank frame (grey-level std {spread:.2f} < '
@@ -219,7 +232,7 @@ class DenseTracker:
         else:
             self._follow(grey, counts)
         self._last = grey
-        return self._frame_out(np.ones(len(self._ids), bool), counts)
+        return self._frame_out(self._misses == 0, counts)
 
     @property
     def n_alive(self):
@@ -237,23 +250,27 @@ class DenseTracker:
         """Track the alive tracks into ``grey``; kill, re-anchor, birth."""
         guess = self._predict(grey)
         uv, zncc, ok = self._refine(grey, guess)
-        inside = _inside(uv, grey.shape)
         passed = ok & (zncc >= self.min_zncc)
         if self.fb_max_px is not None:
             passed &= self._forward_backward(grey, uv) <= self.fb_max_px
-        keep = inside & passed
+        uv = np.where(ok[:, None], uv, guess)        # a missed track moves with its prediction
+        inside = _inside(uv, grey.shape)
+        misses = np.where(passed, 0, self._misses + 1)
+        keep = inside & (misses <= self.max_misses)
         counts['left'] = int((~inside).sum())
         counts['failed'] = int((inside & ~passed).sum())
+        counts['missed'] = int((keep & ~passed).sum())
         counts['lost'] = int((~keep).sum())
         self._ids, self._key, self._born = self._ids[keep], self._key[keep], self._born[keep]
         self._uv_ref, self._ref_patches = self._uv_ref[keep], self._ref_patches[keep]
-        self._uv = uv[keep]
-        stale = zncc[keep] < self.reanchor_zncc
+        self._uv, self._misses = uv[keep], misses[keep]
+        healthy = self._misses == 0
+        stale = (zncc[keep] < self.reanchor_zncc) & healthy
         by_count, uncovered = self._needs_keyframe(grey.shape)
-        if by_count or uncovered or stale.sum() > _STALE_SHARE * max(len(stale), 1):
-            region = carried_region(self.region, self._region_ref, self._uv, self.step,
-                                    grey.shape) if by_count or uncovered else None
-            self._new_keyframe(grey, stale | by_count, region, counts)
+        if by_count or uncovered or stale.sum() > _STALE_SHARE * max(healthy.sum(), 1):
+            region = carried_region(self.region, self._region_ref, self._uv[healthy],
+                                    self.step, grey.shape) if by_count or uncovered else None
+            self._new_keyframe(grey, (stale | by_count) & healthy, region, counts)
 
     def _predict(self, grey):
         """Where the alive tracks ``(P, 2) float32`` are expected in ``grey``: moved by DIS
@@ -281,38 +298,41 @@ class DenseTracker:
         if len(uv) == 0:
             return uv, zncc, ok
         x0, y0, x1, y1 = _box(guess, grey.shape, _WARP_MARGIN + self.lk_window)
-        current = _Crop(_normalise(grey[y0:y1, x0:x1]), np.float32([x0, y0]))
+        raw = grey[y0:y1, x0:x1].astype(np.float32)
+        current = _Crop(_normalise(raw), np.float32([x0, y0]), raw)
         for key in np.unique(self._key):
             rows = np.flatnonzero(self._key == key)
             uv[rows], zncc[rows], ok[rows] = self._refine_keyframe(
-                self._keyframes[key], current, rows, guess[rows])
+                self._keyframes[key], current, self._uv_ref[rows], self._ref_patches[rows],
+                guess[rows])
         return uv, zncc, ok & np.isfinite(uv[:, 0]) & np.isfinite(uv[:, 1])
 
-    def _refine_keyframe(self, keyframe, current, rows, guess):
-        """Tracks ``rows`` of one keyframe: the normalised frame ``current`` (a
-        :class:`_Crop`) is warped into the keyframe by the displacement field of the
-        ``guess`` es (where the method warps), then Lucas-Kanade from the normalised
-        keyframe corrects what the field missed; the ZNCC check is taken in the warped
-        frame."""
-        ref = self._uv_ref[rows]
+    def _refine_keyframe(self, keyframe, current, ref, patches, guess):
+        """Tracks of one keyframe at ``ref (P, 2)`` in it, with their reference
+        ``patches (P, n)``: the frame ``current`` (a :class:`_Crop`) is warped into the
+        keyframe by the displacement field of the ``guess`` es (where the method warps)
+        and normalised, then Lucas-Kanade from the normalised keyframe corrects what the
+        field missed; the ZNCC check is taken in the warped frame; a track whose ZNCC is
+        under ``_SMOOTH_ZNCC`` is pulled toward its passing neighbours' field (fully at
+        ``min_zncc``). Returns ``(uv (P, 2), zncc (P,), ok (P,))``."""
         shape = keyframe.normalised.shape
         if not self._warp:
             image = cv2.copyMakeBorder(current.image, int(current.origin[1]), max(
                 shape[0] - int(current.origin[1]) - current.image.shape[0], 0), int(
                 current.origin[0]), max(shape[1] - int(current.origin[0])
                                         - current.image.shape[1], 0), cv2.BORDER_REPLICATE)
-            uv, ok = guess, np.ones(len(rows), bool)
+            uv, ok = guess, np.ones(len(ref), bool)
             if self._refine_lk:
                 uv, ok = self._lk(keyframe.normalised, image, ref, guess)
             if self._refine_lk and self._dis is not None:
                 ok &= np.linalg.norm(uv - guess, axis=1) <= _MAX_REFINEMENT
-            return uv, _patch_zncc(self._ref_patches[rows], _smoothed(image), uv), ok
+            return uv, _patch_zncc(patches, _smoothed(image), uv), ok
         x0, y0, x1, y1 = _box(ref, shape, _WARP_MARGIN + self.lk_window)
         origin = np.float32([x0, y0])
         local = ref - origin
         field = _displacement_field(local, guess - ref, (y1 - y0, x1 - x0), self.step)
-        warped = _warp(current, field, origin)
-        where, ok = local, np.ones(len(rows), bool)
+        warped = _normalise(_warp(current.raw, current.origin, field, origin))
+        where, ok = local, np.ones(len(ref), bool)
         if self._refine_lk:
             where, ok = self._lk(
                 np.ascontiguousarray(keyframe.normalised[y0:y1, x0:x1]), warped, local,
@@ -320,10 +340,15 @@ class DenseTracker:
             if self._dis is not None:
                 ok &= np.linalg.norm(where - local, axis=1) <= _MAX_REFINEMENT
         uv = where + origin + sample(field, where)
-        zncc = _patch_zncc(self._ref_patches[rows], _smoothed(warped), where)
+        zncc = _patch_zncc(patches, _smoothed(warped), where)
         if self._refine_lk:
             back, both = self._refine_in_frame(keyframe, current, ref, uv.astype(np.float32))
             uv = np.where(both[:, None], 0.5 * (uv + back), uv)
+        if self._refine_lk and self.min_zncc < _SMOOTH_ZNCC:
+            weight = np.clip((_SMOOTH_ZNCC - zncc) / (_SMOOTH_ZNCC - self.min_zncc), 0.0, 1.0)
+            uv = uv + weight[:, None] * (_neighbour_moves(
+                local, uv - ref, ok & (zncc >= self.min_zncc), (y1 - y0, x1 - x0), self.step)
+                - (uv - ref))
         return uv, zncc, ok
 
     def _refine_in_frame(self, keyframe, current, ref, guess):
@@ -332,9 +357,10 @@ class DenseTracker:
         from it to the normalised frame ``current``; returns ``(uv: (P, 2), ok: (P,))``.
         The two ways err in opposite directions where the view is foreshortened or
         stretched against the keyframe, so the tracker takes their mean."""
+        current = _sub_crop(current, guess, _WARP_MARGIN + self.lk_window)
         local = guess - current.origin
         field = _displacement_field(local, ref - guess, current.image.shape, self.step)
-        warped = _warp(_Crop(keyframe.normalised, np.float32([0, 0])), field, current.origin)
+        warped = _normalise(_warp(keyframe.grey, np.float32([0, 0]), field, current.origin))
         source = local
         for _ in range(_INVERSE_STEPS):       # where the warped keyframe shows each ``ref``
             source = ref - current.origin - sample(field, source)
@@ -362,8 +388,7 @@ class DenseTracker:
         (new tracks to be born)."""
         by_count = self.reanchor_every is not None and \
             self._frame - self._newest_key >= self.reanchor_every
-        cells = region_cells(self._region_ref, self.step)
-        uncovered = _uncovered_share(cells, self._uv, self.step, shape) > \
+        uncovered = _uncovered_share(self._cells, self._uv, self.step, shape) > \
             self.reanchor_uncovered
         return by_count, uncovered
 
@@ -372,12 +397,14 @@ class DenseTracker:
         oldest keyframe beyond ``max_keyframes``) are re-anchored to it, keeping their ids;
         with a ``region`` (None: no births), tracks are born on its uncovered cells."""
         key = self._frame
-        normalised = _normalise(grey)
-        self._keyframes[key] = _Keyframe(grey, normalised, _smoothed(normalised))
-        if len(self._keyframes) > self.max_keyframes:        # the one holding fewest tracks
-            older = np.array(sorted(set(self._keyframes) - {key}))
-            fewest = older[np.argmin([np.count_nonzero(self._key == k) for k in older])]
-            move = move | (self._key == fewest)
+        raw = grey.astype(np.float32)
+        normalised = _normalise(raw)
+        self._keyframes[key] = _Keyframe(raw, normalised, _smoothed(normalised))
+        healthy = self._misses == 0           # missed tracks keep their keyframe
+        older, held = np.unique(self._key[healthy & (self._key != key)], return_counts=True)
+        if len(older) >= self.max_keyframes:     # those holding fewest tracks are merged
+            fewest = older[np.argsort(-held, kind='stable')[self.max_keyframes - 1:]]
+            move = move | (np.isin(self._key, fewest) & healthy)
         self._key[move] = key
         self._uv_ref[move] = self._uv[move]
         self._ref_patches[move] = _centred_patches(self._keyframes[key].smoothed,
@@ -386,6 +413,7 @@ class DenseTracker:
         counts['reanchored'] = 1
         if region is not None:
             self._region_ref = region
+            self._cells = region_cells(region, self.step)
             counts['born'] = self._birth(grey, key)
         for old in set(self._keyframes) - set(self._key.tolist()) - {key}:
             del self._keyframes[old]
@@ -393,7 +421,7 @@ class DenseTracker:
     def _birth(self, grey, key):
         """New tracks on the uncovered, textured grid cells of the region, anchored to the
         keyframe ``key``; returns how many were born."""
-        cells = region_cells(self._region_ref, self.step)
+        cells = self._cells
         if len(cells):
             cells = cells[~_covered(cells, self._uv, self.step, grey.shape)]
         patches = _centred_patches(grey, cells)
@@ -410,6 +438,7 @@ class DenseTracker:
         self._uv = np.concatenate([self._uv, cells.astype(np.float64)])
         self._uv_ref = np.concatenate([self._uv_ref, cells.astype(np.float32)])
         self._born = np.concatenate([self._born, np.full(n, self._frame, np.int64)])
+        self._misses = np.concatenate([self._misses, np.zeros(n, np.int64)])
         self._ref_patches = np.concatenate([self._ref_patches, patches])
         return n
 
@@ -431,7 +460,7 @@ class DenseTracker:
 
 def _check_parameters(step, method, channel_order, min_zncc, reanchor_zncc, reanchor_uncovered,
                       min_texture, blank_std, fb_max_px, reanchor_every, lk_window,
-                      max_keyframes, lk_levels):
+                      max_keyframes, lk_levels, max_misses):
     """Raise ValueError naming the first of DenseTracker's parameters out of its range."""
     if isinstance(step, bool) or not isinstance(step, (int, np.integer)) or step < 1:
         raise ValueError(f'step must be an int >= 1 pixel; got {step!r}')
@@ -458,6 +487,9 @@ def _check_parameters(step, method, channel_order, min_zncc, reanchor_zncc, rean
     if lk_levels is not None and (not isinstance(lk_levels, (int, np.integer))
                                   or not 0 <= lk_levels <= 6):
         raise ValueError(f'lk_levels must be None or an int in [0, 6]; got {lk_levels!r}')
+    if isinstance(max_misses, bool) or not isinstance(max_misses, (int, np.integer)) \
+            or max_misses < 0:
+        raise ValueError(f'max_misses must be an int >= 0; got {max_misses!r}')
 
 
 def region_mask(region, shape):
@@ -635,15 +667,17 @@ def _covered(cells, uv, step, shape):
     H, W = shape
     offset = step // 2
     rows, cols = (H - offset - 1) // step + 1, (W - offset - 1) // step + 1
-    base = np.floor((uv - offset) / step).astype(np.int64)
+    u, v = (uv[:, 0] - offset) / step, (uv[:, 1] - offset) / step    # in grid steps
+    base_u, base_v = np.floor(u), np.floor(v)
+    frac_u, frac_v = u - base_u, v - base_v
+    base_u, base_v = base_u.astype(np.int64), base_v.astype(np.int64)
     marked = np.zeros(rows * cols, bool)
     for dr in (0, 1):
         for dc in (0, 1):
-            node = base + (dc, dr)
-            near = np.hypot(*(uv - (node * step + offset)).T) <= _COVER_RADIUS * step
-            near &= (node[:, 0] >= 0) & (node[:, 1] >= 0) & (node[:, 0] < cols) & \
-                (node[:, 1] < rows)
-            marked[node[near, 1] * cols + node[near, 0]] = True
+            near = (frac_u - dc) ** 2 + (frac_v - dr) ** 2 <= _COVER_RADIUS ** 2
+            c, r = base_u[near] + dc, base_v[near] + dr
+            on = (c >= 0) & (r >= 0) & (c < cols) & (r < rows)
+            marked[r[on] * cols + c[on]] = True
     where = (cells - offset) // step
     return marked[where[:, 1] * cols + where[:, 0]]
 
@@ -667,6 +701,17 @@ def _box(points, shape, margin):
     x0, y0 = (int(max(v, 0)) for v in low)
     x1, y1 = int(min(high[0], W)), int(min(high[1], H))
     return x0, y0, max(x1, x0 + 1), max(y1, y0 + 1)
+
+
+def _sub_crop(crop, points, margin):
+    """The part of the :class:`_Crop` ``crop`` around ``points (P, 2)`` (frame pixels):
+    their bounding box grown by ``margin``, within the crop."""
+    h, w = crop.image.shape
+    x0, y0, x1, y1 = _box(points - crop.origin, (h, w), margin)
+    if (x0, y0, x1, y1) == (0, 0, w, h):
+        return crop
+    return _Crop(crop.image[y0:y1, x0:x1], crop.origin + np.float32([x0, y0]),
+                 None if crop.raw is None else crop.raw[y0:y1, x0:x1])
 
 
 def _displacement_field(points, moves, size, step):
@@ -697,22 +742,32 @@ def _displacement_field(points, moves, size, step):
     return np.ascontiguousarray(fine[s:s + h, s:s + w])
 
 
+def _neighbour_moves(points, moves, trusted, size, step):
+    """``(P, 2)``: the smooth displacement field of the ``trusted (P,)`` tracks' ``moves
+    (P, 2)`` at ``points (P, 2)`` (box pixels of a box of ``size (h, w)``); where fewer
+    than 4 tracks are trusted, the moves themselves."""
+    if trusted.sum() < 4:
+        return moves
+    field = _displacement_field(points[trusted], moves[trusted].astype(np.float32), size, step)
+    return sample(field, points).astype(np.float64)
+
+
 def _smoothed(image):
     """``image`` blurred by ``_CHECK_SIGMA``: the ZNCC check compares these, so that the
     detail a foreshortened view loses does not fail a track."""
     return cv2.GaussianBlur(image, (0, 0), _CHECK_SIGMA)
 
 
-def _warp(crop, field, origin):
-    """The box at ``origin (x0, y0)`` of the keyframe, filled from the frame's
-    :class:`_Crop` ``crop``: ``out(x) = frame(origin + x + field(x))`` for a displacement
-    ``field (h, w, 2)`` (frame pixels)."""
+def _warp(image, image_origin, field, origin):
+    """The box at ``origin (x0, y0)`` of one image, filled from another ``image`` whose
+    pixel (0, 0) is at ``image_origin``: ``out(x) = image(origin + x + field(x) -
+    image_origin)`` for a displacement ``field (h, w, 2)`` (pixels)."""
     h, w = field.shape[:2]
-    shift = origin - crop.origin
+    shift = origin - image_origin
     grid = np.stack(np.meshgrid(np.arange(w, dtype=np.float32) + shift[0],
                                 np.arange(h, dtype=np.float32) + shift[1]), axis=-1)
     where = grid + field
-    return cv2.remap(crop.image, where[..., 0], where[..., 1], cv2.INTER_LINEAR,
+    return cv2.remap(image, where[..., 0], where[..., 1], cv2.INTER_LINEAR,
                      borderMode=cv2.BORDER_REPLICATE)
 
 
@@ -720,12 +775,13 @@ def _normalise(grey, sigma=_NORM_SIGMA):
     """``grey (h, w)`` with its local mean removed and its local contrast equalised
     (Gaussian windows of ``sigma`` px), as uint8 around 128 (40 grey levels per local
     standard deviation): Lucas-Kanade on it is blind to shading gain and offset."""
-    image = grey.astype(np.float32)
-    size = (4 * int(round(sigma)) + 1,) * 2       # stack blur: about a Gaussian of sigma
-    detail = image - cv2.stackBlur(image, size)
-    spread = cv2.stackBlur(detail * detail, size)
-    out = detail * (40.0 / (np.sqrt(spread) + 1.0)) + 128.0
-    return np.clip(out, 0, 255).astype(np.uint8)
+    image = grey.astype(np.float32, copy=False)
+    size = (2 * int(round(sigma)) + 1,) * 2       # a box twice: a tent, about a Gaussian
+    blur = partial(cv2.boxFilter, ddepth=-1, ksize=size, borderType=cv2.BORDER_REPLICATE)
+    detail = cv2.subtract(image, blur(blur(image)))
+    spread = np.maximum(blur(blur(cv2.multiply(detail, detail))), 0.0)   # (rounding: >= 0)
+    gain = cv2.divide(40.0, cv2.sqrt(spread) + 1.0)
+    return cv2.add(cv2.multiply(detail, gain), 127.5, dtype=cv2.CV_8U)   # rounded, clipped
 
 
 def _occupied_mask(uv, step, shape, close_cells=9):
