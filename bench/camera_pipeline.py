@@ -23,7 +23,6 @@ from pathlib import Path
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 
 import cv2
@@ -38,8 +37,6 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / 'test'))          # the node-over-DDS helpers of the tests
 import rosutil  # noqa: E402, I100
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402, I100
-import rclpy  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2  # noqa: E402
 from std_msgs.msg import Header  # noqa: E402
 
@@ -50,14 +47,12 @@ WARMUP_S = 2.0
 DDS_PROFILE = REPO / 'config' / 'fastdds_large_images.xml'
 
 
-class Endpoint:
+class Endpoint(rosutil.SpunNode):
     """This process's side: publishes ``image`` and ``camera_info``; notes when each stamp's
     ``tracks`` and ``points`` arrive, and the nodes' newest diagnostics."""
 
     def __init__(self):
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context)
-        self.node = rclpy.create_node('camera', namespace=NAMESPACE, context=self.context)
+        super().__init__('camera', NAMESPACE)
         self.image_pub = self.node.create_publisher(Image, 'image', 10)
         self.info_pub = self.node.create_publisher(CameraInfo, 'camera_info', 10)
         self.tracks_at, self.points_at, self.tracks_sizes, self.diagnostics = {}, {}, [], {}
@@ -66,12 +61,7 @@ class Endpoint:
         self.points_sub = self.node.create_subscription(PointCloud2, 'points',
                                                         self._on_points, 100)
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 10)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self._woken = threading.Condition()
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._spin, daemon=True)
-        self._thread.start()
+        self.start()
 
     @staticmethod
     def _stamp(msg):
@@ -91,16 +81,6 @@ class Endpoint:
                 self.diagnostics.setdefault(node, {}).update(
                     {kv.key: kv.value for kv in status.values})
 
-    def _spin(self):
-        while not self._stop.is_set():
-            self.executor.spin_once(timeout_sec=0.05)
-            with self._woken:
-                self._woken.notify_all()
-
-    def wait_for(self, condition, timeout):
-        with self._woken:
-            return self._woken.wait_for(condition, timeout)
-
     def connected(self):
         tracker = self.diagnostics.get('grass_nrsfm_tracker', {})
         node = self.diagnostics.get('grass_nrsfm', {})
@@ -110,12 +90,6 @@ class Endpoint:
                 and int(tracker.get('tracks subscribers', 0)) >= 2
                 and int(node.get('tracks publishers', 0)) >= 1
                 and int(node.get('points subscribers', 0)) >= 1)
-
-    def close(self):
-        self._stop.set()
-        self._thread.join()
-        self.node.destroy_node()
-        rclpy.shutdown(context=self.context)
 
 
 def rendered(n_frames, encoding, size):

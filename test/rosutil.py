@@ -31,14 +31,56 @@ RIGID_LAUNCH = ('import sys; from doubles import RigidALS; '
                 'sys.exit(main(solver_factory=RigidALS))')
 
 
-class Feeder:
+class SpunNode:
+    """A node of this process spun by its own thread (in its own context unless one is given).
+    Subclasses make their endpoints, then call :meth:`start`; :meth:`wait_for` checks a
+    condition after every wake-up of the executor."""
+
+    def __init__(self, name, namespace, context=None):
+        self._owns_context = context is None
+        self.context = context or rclpy.Context()
+        if self._owns_context:
+            rclpy.init(context=self.context)
+        self.node = rclpy.create_node(name, namespace=namespace, context=self.context)
+
+    def start(self):
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self._woken = threading.Condition()          # notified after every executor wake-up
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+
+    def _spin(self):
+        while not self._stop.is_set():
+            self.executor.spin_once(timeout_sec=0.05)
+            with self._woken:
+                self._woken.notify_all()
+
+    def wait_for(self, condition, timeout):
+        """Wait until ``condition()`` holds or ``timeout`` s pass; return ``condition()``.
+
+        It is checked after every wake-up of the executor: at once when a message has been
+        handled. Graph changes (a peer matched or gone) raise no callback in rclpy's Python
+        API, so the executor also wakes every 50 ms without one and the condition is checked
+        then."""
+        with self._woken:
+            return self._woken.wait_for(condition, timeout)
+
+    def close(self):
+        self._stop.set()
+        self._thread.join()
+        self.node.destroy_node()
+        if self._owns_context:
+            rclpy.shutdown(context=self.context)
+
+
+class Feeder(SpunNode):
     """This process's side: publishes ``tracks``, collects ``points`` and ``/diagnostics``."""
 
     def __init__(self, namespace, keep_points=True, points_depth=POINTS_DEPTH, tracks_qos=10):
+        super().__init__('feeder', namespace)
         self.points_received = 0                    # counted even when not kept (load runs)
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context)
-        self.node = rclpy.create_node('feeder', namespace=namespace, context=self.context)
         self.pub = self.node.create_publisher(PointCloud2, 'tracks', tracks_qos)
         self.pub_created = time.monotonic()
         self.points, self.diagnostics = [], []
@@ -52,12 +94,7 @@ class Feeder:
             PointCloud2, 'points/refined',
             self.refined.append if keep_points else (lambda msg: None), points_depth)
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 10)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self._woken = threading.Condition()          # notified after every executor wake-up
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._spin, daemon=True)
-        self._thread.start()
+        self.start()
 
     def _count_point(self, msg):
         self.points_received += 1
@@ -82,22 +119,6 @@ class Feeder:
         if any(s.hardware_id == self.node.get_namespace() + '/grass_nrsfm' for s in msg.status):
             self.diagnostics.append(msg)
             self.last_diagnostics_at = time.monotonic()
-
-    def _spin(self):
-        while not self._stop.is_set():
-            self.executor.spin_once(timeout_sec=0.05)
-            with self._woken:
-                self._woken.notify_all()
-
-    def wait_for(self, condition, timeout):
-        """Wait until ``condition()`` holds or ``timeout`` s pass; return ``condition()``.
-
-        It is checked after every wake-up of the executor: at once when a message (points,
-        diagnostics) has been handled. Graph changes (a peer matched or gone) raise no callback
-        in rclpy's Python API, so the executor also wakes every 50 ms without one and the
-        condition is checked then."""
-        with self._woken:
-            return self._woken.wait_for(condition, timeout)
 
     def node_reports(self, since):
         """``{key: value}`` of the newest diagnostics received after ``since`` (monotonic), or
@@ -161,12 +182,6 @@ class Feeder:
             return None
         values = self.diagnostic_values()
         return {k: int(values[k]) for k in keys}
-
-    def close(self):
-        self._stop.set()
-        self._thread.join()
-        self.node.destroy_node()
-        rclpy.shutdown(context=self.context)
 
 
 def publish(feeder, messages, period=1 / 30):

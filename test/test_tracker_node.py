@@ -23,11 +23,10 @@ rclpy = pytest.importorskip('rclpy')
 cv2 = pytest.importorskip('cv2')
 from builtin_interfaces.msg import Time  # noqa: E402, I100
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2  # noqa: E402
 from std_msgs.msg import Header  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
-from rosutil import RIGID_LAUNCH, stop, unique_namespace  # noqa: E402, I100
+from rosutil import RIGID_LAUNCH, SpunNode, stop, unique_namespace  # noqa: E402, I100
 
 pytestmark = pytest.mark.ros
 TEST_DIR = Path(__file__).resolve().parent
@@ -71,16 +70,13 @@ def camera_info():
                       distortion_model='plumb_bob')
 
 
-class Camera:
+class Camera(SpunNode):
     """This process's side of one namespace: publishes ``image`` and ``camera_info``, keeps
     ``tracks``, ``points`` and the namespace's ``/diagnostics`` statuses by node name."""
 
     def __init__(self, namespace, context=None):
+        super().__init__('camera', namespace, context)
         self.namespace = namespace
-        self.context = context or rclpy.Context()
-        if context is None:
-            rclpy.init(context=self.context)
-        self.node = rclpy.create_node('camera', namespace=namespace, context=self.context)
         self.image_pub = self.node.create_publisher(Image, 'image', 10)
         self.info_pub = self.node.create_publisher(CameraInfo, 'camera_info', 10)
         self.created = time.monotonic()
@@ -93,12 +89,7 @@ class Camera:
                                       10)
         self.reset_client = self.node.create_client(
             Trigger, f'{namespace}/grass_nrsfm_tracker/reset')
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self._woken = threading.Condition()
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._spin, daemon=True)
-        self._thread.start()
+        self.start()
 
     def _on_diagnostics(self, msg):
         """Keep the values of a node of our namespace (all its statuses in the message)."""
@@ -109,17 +100,6 @@ class Camera:
                 values.setdefault(node, {}).update({kv.key: kv.value for kv in status.values})
         for node, kept in values.items():
             self.statuses[node] = (time.monotonic(), kept)
-
-    def _spin(self):
-        while not self._stop.is_set():
-            self.executor.spin_once(timeout_sec=0.05)
-            with self._woken:
-                self._woken.notify_all()
-
-    def wait_for(self, condition, timeout):
-        """Wait until ``condition()`` holds (checked after every executor wake-up)."""
-        with self._woken:
-            return self._woken.wait_for(condition, timeout)
 
     def values(self, node='grass_nrsfm_tracker'):
         """The newest diagnostics values of ``node`` sent after our publishers were made."""
@@ -154,11 +134,6 @@ class Camera:
 
     info = None
 
-    def close(self):
-        self._stop.set()
-        self._thread.join()
-        self.node.destroy_node()
-
 
 def start(ros_env, log, namespace, args=(), launch=TRACKER):
     """A node (``launch``: Python code run from test/) in ``namespace``, output in ``log``."""
@@ -184,7 +159,6 @@ def tracker(ros_env, tmp_path, request):
         yield proc, log, camera
     finally:
         camera.close()
-        rclpy.shutdown(context=camera.context)
         assert stop(proc) == 0, log.read_text()
 
 
