@@ -107,11 +107,13 @@ def _reconstruction_weights(Wc, keep, dropped, k=FILL_NEIGHBOURS):
     nbrs = NearestNeighbors(n_neighbors=k).fit(W_kept.T).kneighbors(
         Wc[:, dropped].T, return_distance=False)                   # nearest first
     weights = np.empty(nbrs.shape)
+    kept_rows = np.ascontiguousarray(W_kept.T)                       # (P', 2F)
+    dropped_rows = np.ascontiguousarray(Wc[:, dropped].T)             # (D, 2F)
     step = max(1, CHUNK // (Wc.shape[0] * k))
     for a in range(0, dropped.size, step):
         part = slice(a, a + step)
-        diff = W_kept[:, nbrs[part]] - Wc[:, dropped[part]][:, :, None]   # (2F, d, k)
-        G = np.einsum('rdi,rdj->dij', diff, diff)
+        diff = kept_rows[nbrs[part]] - dropped_rows[part][:, None, :]      # (d, k, 2F)
+        G = diff @ diff.transpose(0, 2, 1)
         G += FILL_REGULARISATION * np.trace(G, axis1=1, axis2=2)[:, None, None] * np.eye(k)
         G += 1e-12 * np.eye(k)
         w = np.linalg.solve(G, np.ones((G.shape[0], k, 1)))[..., 0]
