@@ -16,8 +16,11 @@ the :mod:`~grass_nrsfm_ros.mapper` solves), :mod:`~grass_nrsfm_ros.refinement` (
 Camera intrinsics (:meth:`LivePipeline.set_camera`, ``K: (3, 3)``): each frame's pixels become
 normalised coordinates ``K^-1 [u, v, 1]`` on arrival, the rooms behind work on those, and each
 FrameResult goes out through the pinhole (:func:`pinhole_points`): depth ``Z = scene_depth (1 +
-z)`` from the reconstruction's centred depth ``z`` (normalised units), ``X, Y = Z x, Z y``, so
-``K [X/Z, Y/Z, 1]`` is the frame's pixels and each frame's mean depth is ``scene_depth``.
+s z)`` from the reconstruction's centred depth ``z`` (normalised units), ``X, Y = Z x, Z y``, so
+``K [X/Z, Y/Z, 1]`` is the frame's pixels and each frame's mean depth is ``scene_depth``. The
+depth sign ``s`` (an orthographic solve's is arbitrary) is chosen once per sequence, from the
+frames of its first solved window (:func:`~grass_nrsfm_ros.nrsfm.perspective.low_rank_sign`);
+later windows keep the sign of the earlier ones, so it holds (frames before it: ``s = 1``).
 Without ``K`` the pixels are solved as orthographic projections (warned once).
 
 Shapes: ``ids: (P,)`` track ids, ``uv: (P, 2)`` pixels; a FrameResult's ``xyz: (P, 3)`` in the
@@ -34,7 +37,7 @@ from grass_nrsfm_ros import params
 from grass_nrsfm_ros.backends import InlineBackend, ProcessBackend
 from grass_nrsfm_ros.mapper import make_mapper, refined_after_of
 from grass_nrsfm_ros.nrsfm.camera import validate_intrinsics, warn_orthographic
-from grass_nrsfm_ros.nrsfm.perspective import MIN_RELATIVE_DEPTH
+from grass_nrsfm_ros.nrsfm.perspective import low_rank_sign, MIN_RELATIVE_DEPTH
 from grass_nrsfm_ros.refinement import Refinement
 from grass_nrsfm_ros.shape_tracking import ShapeTracking
 from grass_nrsfm_ros.windowing import FrameError, Windowing
@@ -44,6 +47,8 @@ LATENCY_WINDOW = 300
 #: with K: frames whose normalised points are kept for the output (a frame's are dropped once
 #: it is refined; this bounds frames never refined)
 RAYS_KEPT = 1000
+#: with K: fewest frames of a sequence's first solved window that decide its depth sign
+SIGN_FRAMES = 10
 
 
 def pinhole_points(xyz, rays, scene_depth=1.0):
@@ -70,7 +75,8 @@ class LivePipeline:
         self.metres_per_pixel = float(metres_per_pixel)
         self.scene_depth, self.projection = float(scene_depth), projection
         self.camera = None if camera is None else validate_intrinsics(camera)
-        self._rays = OrderedDict()      # with K: stamp -> (ids, normalised uv) until refined
+        self._rays = OrderedDict()      # with K: stamp -> (ids, normalised uv, sequence)
+        self._signs = {}                # with K: sequence -> its depth sign, once chosen
         self.orthographic_warning = warn_orthographic      # said once: pixels without K
         self.latencies = deque(maxlen=LATENCY_WINDOW)
         self._surprised = False         # the last frame asked for a fresh window
@@ -118,6 +124,8 @@ class LivePipeline:
         for update in updates:
             if update.model is not None:
                 self.tracking.offer(update.sequence, update.model)
+            if self.camera is not None and update.sequence not in self._signs:
+                self._choose_sign(update)
             with self._lock:
                 out += [self._scaled(r, refined=True) for r in self.refinement.take(update)]
         return out, updates
@@ -172,7 +180,7 @@ class LivePipeline:
         y = (frame.uv[:, 1] - K[1, 2]) / K[1, 1]
         x = (frame.uv[:, 0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
         frame = replace(frame, uv=np.column_stack([x, y]))
-        self._rays[frame.stamp_ns] = (frame.ids, frame.uv)
+        self._rays[frame.stamp_ns] = (frame.ids, frame.uv, frame.sequence)
         while len(self._rays) > RAYS_KEPT:
             self._rays.popitem(last=False)
         return frame
@@ -185,9 +193,28 @@ class LivePipeline:
             return replace(result, xyz=result.xyz * self.metres_per_pixel)
         if refined:
             self._rays.pop(result.stamp_ns)
-        ids, uv = rays
+        ids, uv, sequence = rays
         at = np.searchsorted(ids, result.ids)
-        return replace(result, xyz=pinhole_points(result.xyz, uv[at], self.scene_depth))
+        xyz = result.xyz * [1.0, 1.0, self._signs.get(sequence, 1.0)]
+        return replace(result, xyz=pinhole_points(xyz, uv[at], self.scene_depth))
+
+    def _choose_sign(self, update):
+        """The depth sign of ``update``'s sequence, once: from the frames of its first solved
+        window with K (:func:`low_rank_sign` on their common tracks)."""
+        frames = [(r, self._rays[r.stamp_ns]) for r in update.results
+                  if r.stamp_ns in self._rays and self._rays[r.stamp_ns][2] == update.sequence]
+        if len(frames) < SIGN_FRAMES:
+            return
+        common = frames[0][0].ids
+        for r, _ in frames[1:]:
+            common = np.intersect1d(common, r.ids, assume_unique=True)
+        if common.size < 4:
+            return
+        x, delta = [], []
+        for r, (ids, uv, _) in frames:
+            x.append(uv[np.searchsorted(ids, common)].T)
+            delta.append(r.xyz[np.searchsorted(r.ids, common), 2])
+        self._signs[update.sequence] = low_rank_sign(np.vstack(x), np.stack(delta))
 
 
 def make_pipeline(config, solver_factory=None, *, mapping='inline', notify=None, on_exit=None,

@@ -129,6 +129,21 @@ def fit_residual(result, W_in):
     return float(np.sqrt(np.mean((fitted - centred) ** 2) / np.mean(centred ** 2)))
 
 
+def low_rank_sign(x, delta, rank=3):
+    """+1 or -1: the sign ``s`` of the relative depths ``delta: (F, P)`` whose weak-perspective
+    image ``x (1 + s delta)`` (``x: (2F, P)`` normalised tracks) is closer to rank ``rank``
+    (relative residual of its row-centred truncated SVD). The true sign's is a scaled
+    orthographic image of the shape; the mirror's is not (record 0703: with the true depths
+    the mirror's rank-3 residual is 2-3 times larger on a face, an inflating surface and a
+    bending sheet)."""
+    residuals = []
+    for sign in (1.0, -1.0):
+        W = weak_perspective_tracks(x, np.maximum(sign * delta, MIN_RELATIVE_DEPTH - 1.0))
+        values = np.linalg.svd(W - W.mean(axis=1, keepdims=True), compute_uv=False)
+        residuals.append(np.sum(values[rank:] ** 2) / max(np.sum(values ** 2), 1e-300))
+    return 1.0 if residuals[0] <= residuals[1] else -1.0
+
+
 def camera_frame_shapes(x, delta, scale=1.0):
     """``S: (3F, P)``: ``Z = scale (1 + delta)``, ``X = Z x``, ``Y = Z y`` of normalised tracks
     ``x: (2F, P)`` and relative depths ``delta: (F, P)``."""
