@@ -289,8 +289,9 @@ def kinect_paper_table(doc):
 
 
 def perspective_table(doc):
-    lines = ['| sequence | F x P | orthographic projections | first solve | perspective | '
-             'rigid | perspective / orthographic |', '|---|---|---|---|---|---|---|']
+    lines = ['| sequence | F x P | orthographic projections | first solve | perspective '
+             '(reconstruct + K) | rigid | perspective / orthographic |',
+             '|---|---|---|---|---|---|---|']
     for r in doc['rows']:
         lines.append(f"| {r['sequence']} | {r.get('F', '-')} x {r.get('P', '-')} | "
                      f"{fmt(r.get('e3d_orthographic_projection'))} | "
