@@ -1,9 +1,11 @@
 """Algorithm 1 of Kumar et al. 2018: the Grassmannian ADMM, nothing else.
 
 Problem solved on tracks ``Wn: (2F, P)`` centred per row and scaled to unit RMS, with known
-rotations ``R: (F, 3, 3)``::
+rotations ``R: (F, 3, 3)`` and optional per-entry weights ``M: (2F, P)`` in [0, 1] (0: not
+seen; None: all 1)::
 
-    min  1/2 ||Wn - R S||^2 + gamma ||S#||_* + lam1 ||T_s - T_s C_s||^2 + lam2 ||T_t - T_t C_t||^2
+    min  1/2 ||M^(1/2) o (Wn - R S)||^2 + gamma ||S#||_* + lam1 ||T_s - T_s C_s||^2
+         + lam2 ||T_t - T_t C_t||^2
          + lam3 ||C_s||_* + lam4 ||C_t||_*
     s.t. S# = T1(S), Psi = xi(C, S), S = zeta(Psi, N)
 
@@ -21,6 +23,10 @@ This module owns:
 * :class:`AdmmState`: the variables and one iteration (:meth:`AdmmState.iterate`);
 * :func:`stop_reason`: the stopping rule (every gap below GAP_TOLERANCE, or beta at beta_max);
 * :func:`run`: iterate until the rule says stop.
+
+Weights enter the S update exactly: per entry in the closed form (:func:`closed_form_shapes`),
+per pattern of weights over frames in the smoothness prior's banded solve (priors.py); an
+unseen entry's S then follows S# (docs/decisions/0800).
 
 Layout: the ``(F, 3, P)`` arrays are stored column-permuted so that each spatial group is a
 contiguous slice (the paper's T2); one iteration makes two sweeps over cache-sized column
@@ -146,18 +152,37 @@ def add_gram(G, block, buffer):
     G += X @ X.T
 
 
+def weight_patterns(M):
+    """``(ids: (n,), patterns: (k, F, 2))``: the distinct columns of the weights ``M: (F, 2,
+    n)`` and which one each column has."""
+    F, _, n = M.shape
+    patterns, ids = np.unique(M.reshape(2 * F, n).T, axis=0, return_inverse=True)
+    return ids.reshape(n), patterns.reshape(-1, F, 2).astype(np.float64)
+
+
 def regroup_due(every, K, it):
     """Whether iteration ``it`` (from 0) regroups a branch of ``K`` groups: every ``every``-th
     (never with ``every`` 0 or one group)."""
     return bool(every and K > 1 and (it + 1) % every == 0)
 
 
-def closed_form_shapes(R, Rt, W, sharp, Y1, beta, work, out):
+def closed_form_shapes(R, Rt, W, sharp, Y1, beta, work, out, M=None):
     """The S update without the smoothness prior, per frame in closed form: the solution of
     ``(R^T P R + beta I) S = R^T W + beta S# + Y1`` (P keeps the two image rows) is
     ``S = R^T diag(scale) (R (beta S# + Y1) + [W; 0])``, ``scale = (1/(1+beta), 1/(1+beta),
     1/beta)``. ``R, Rt: (F, 3, 3)`` (R and R^T), ``W: (F, 2, n)``, ``sharp, Y1: (F, 3, n)``;
-    ``work``: two ``(F, 3, n)`` scratch arrays; the result is written to ``out``."""
+    ``work``: two ``(F, 3, n)`` scratch arrays; the result is written to ``out``. With weights
+    ``M: (F, 2, n)`` (P becomes diag(M)): ``[M o W; 0]`` and the image rows' scale
+    ``1/(M + beta)``."""
+    if M is not None:
+        rhs = np.multiply(sharp, sharp.dtype.type(beta), out=work[0])
+        rhs += Y1
+        cam = np.matmul(R, rhs, out=work[1])
+        cam[:, :2, :] += M * W
+        cam[:, :2, :] /= M + sharp.dtype.type(beta)
+        cam[:, 2, :] *= sharp.dtype.type(1.0 / beta)
+        np.matmul(Rt, cam, out=out)
+        return
     c = 1.0 / (1.0 + beta)
     scale = np.array([c, c, 1.0 / beta], dtype=sharp.dtype)[None, :, None]
     rhs = np.multiply(sharp, sharp.dtype.type(beta), out=work[0])
@@ -237,7 +262,8 @@ class AdmmState:
     (None: k-means++ on S0, one group with the spatial branch off); ``warm``: S0 carries an
     earlier solution (the warm beta0, no smoothness prior); ``beta``: the penalty to start at
     instead (None: the settings' warm_beta0 or beta0); ``smooth``: the smoothness prior on or
-    off instead (None: off when warm).
+    off instead (None: off when warm); ``weights: (2F, P)`` the data term's per-entry weights
+    (None: all 1).
 
     One iteration makes two sweeps over column blocks:
 
@@ -247,7 +273,8 @@ class AdmmState:
        the Gram in between, the gap ``max |S# - S|`` and ``Y1 += beta (S# - S)``.
     """
 
-    def __init__(self, Wn, R, S0, settings, groups=None, warm=False, beta=None, smooth=None):
+    def __init__(self, Wn, R, S0, settings, groups=None, warm=False, beta=None, smooth=None,
+                 weights=None):
         F, P = R.shape[0], Wn.shape[1]
         s = settings
         labels = groups if groups is not None else (
@@ -255,6 +282,11 @@ class AdmmState:
             if s.spatial else np.zeros(P, dtype=np.int64))
         self._layout(Wn, R, settings, labels, np.argsort(labels, kind='stable'),
                      not warm if smooth is None else smooth)
+        self.M = self.patterns = None
+        if weights is not None:
+            self.M = weights.reshape(F, 2, P)[:, :, self.order].astype(self.dtype)
+            if self.smoother is not None:
+                self.patterns = weight_patterns(self.M)
         self.iteration = 0
         self.beta = beta if beta is not None else s.warm_beta0 if warm else s.beta0
         self.beta_reached_max = False
@@ -319,8 +351,11 @@ class AdmmState:
         self.order = self.order[perm]
         self.s_edges = np.searchsorted(self.labels, np.arange(self.K_s + 1))
         self.blocks = column_blocks(self.s_edges, self.width)
-        for arr in (self.W, self.S, self.Ssh, self.Y1):
+        for arr in (self.W, self.S, self.Ssh, self.Y1) + ((self.M,) if self.M is not None
+                                                          else ()):
             arr[...] = arr[:, :, perm]
+        if self.patterns is not None:
+            self.patterns = (self.patterns[0][perm], self.patterns[1])
         self.s_bases = self._spatial_bases_exact()
 
     def _update_group_basis(self, k):
@@ -337,15 +372,19 @@ class AdmmState:
     # sweep 1: S update, spatial branch, Gram of X = S - Y1/beta, data term ----------------------
     def _update_shapes(self, cols, beta):
         """S[:, :, cols]: :func:`closed_form_shapes`, or with the smoothness prior (frames
-        coupled) one banded solve (priors.py)."""
+        coupled) one banded solve (priors.py); weighted where the state has weights."""
+        M = None if self.M is None else self.M[:, :, cols]
         if self.smoother is not None:
             rhs = self.Ssh[:, :, cols].astype(np.float64) * beta + self.Y1[:, :, cols]
-            self.S[:, :, cols] = self.smoother.solve(self.W[:, :, cols].astype(np.float64),
-                                                     rhs, beta)
+            W = self.W[:, :, cols].astype(np.float64)
+            self.S[:, :, cols] = (
+                self.smoother.solve(W, rhs, beta) if M is None else
+                self.smoother.solve_weighted(W, M.astype(np.float64), rhs, beta,
+                                             self.patterns[0][cols], self.patterns[1]))
             return
         work = [b.view(self.F, 3, cols.stop - cols.start) for b in self.buffers[:2]]
         closed_form_shapes(self.Rs, self.Rt, self.W[:, :, cols], self.Ssh[:, :, cols],
-                           self.Y1[:, :, cols], beta, work, self.S[:, :, cols])
+                           self.Y1[:, :, cols], beta, work, self.S[:, :, cols], M)
 
     def _gram_and_data(self, cols, beta, G):
         """Stores the block's ``X = S - Y1/beta``, adds its ``X X^T`` to G; returns the block's
@@ -358,6 +397,8 @@ class AdmmState:
         resid = np.matmul(self.R2, self.S[:, :, cols], out=self.buffers[1].view(F, 2, n))
         resid -= self.W[:, :, cols]
         resid = as_float64(resid, self.wide)
+        if self.M is not None:
+            return float(np.vdot(resid, self.M[:, :, cols] * resid))
         return float(np.vdot(resid, resid))
 
     def _sweep_shapes(self, beta, regroup, timer, t):
@@ -498,7 +539,7 @@ class AdmmState:
         if self.data is None:
             resid = np.matmul(self.R2, self.S, dtype=np.float64)
             resid -= self.W
-            self.data = float(np.vdot(resid, resid))
+            self.data = float(np.vdot(resid, resid if self.M is None else self.M * resid))
         return self.data
 
     def S_world_original_order(self):

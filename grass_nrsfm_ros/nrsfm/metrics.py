@@ -23,16 +23,24 @@ def _nearest_orthogonal(M, reflection):
     return U @ Vt
 
 
-def procrustes_align(S_est, S_gt, *, scale=False, reflection=True, centre=True):
+def procrustes_align(S_est, S_gt, *, scale=False, reflection=True, centre=True, visible=None):
     """Align each frame of ``S_est: (3F, P)`` to ``S_gt: (3F, P)``.
 
     Returns ``(aligned_est, gt)``, both ``(3F, P)`` and, when ``centre``, with each frame's
     centroid removed. Per frame solves ``min_{Q, s} ||s Q X - Y||_F`` with Q orthogonal
-    (``det Q = +1`` unless ``reflection``) and s = 1 unless ``scale``.
+    (``det Q = +1`` unless ``reflection``) and s = 1 unless ``scale``. ``visible: (F, P)``
+    bool: only those points count (centroids over them; both outputs 0 elsewhere).
     """
     X = as_frames(np.asarray(S_est, dtype=np.float64), 3)
     Y = as_frames(np.asarray(S_gt, dtype=np.float64), 3)
-    if centre:
+    if visible is not None:
+        m = np.asarray(visible, dtype=np.float64)[:, None, :]
+        X, Y = np.where(m > 0, X, 0.0), np.where(m > 0, Y, 0.0)
+        if centre:
+            count = np.maximum(m.sum(axis=2, keepdims=True), 1.0)
+            X = (X - X.sum(axis=2, keepdims=True) / count) * m
+            Y = (Y - Y.sum(axis=2, keepdims=True) / count) * m
+    elif centre:
         X = X - X.mean(axis=2, keepdims=True)
         Y = Y - Y.mean(axis=2, keepdims=True)
     M = Y @ X.transpose(0, 2, 1)                      # (F, 3, 3) cross-covariance
@@ -45,16 +53,27 @@ def procrustes_align(S_est, S_gt, *, scale=False, reflection=True, centre=True):
     return from_frames(aligned), from_frames(Y)
 
 
-def e3d(S_est, S_gt, *, scale=False, reflection=True, centre=True, per_frame=False):
+def e3d(S_est, S_gt, *, scale=False, reflection=True, centre=True, per_frame=False,
+        visible=None):
     """Mean over frames of ``||S_est_f - S_gt_f||_F / ||S_gt_f||_F`` after per-frame Procrustes.
 
     ``S_est, S_gt: (3F, P)``. With ``per_frame=True`` returns the ``(F,)`` errors instead.
+    ``visible: (F, P)`` bool: each frame over those points only (both S may be non-finite
+    elsewhere).
     """
+    if visible is not None:
+        visible = np.asarray(visible, dtype=bool)
+        rows = np.repeat(visible, 3, axis=0)
+        S_gt, S_est = (np.where(rows, np.asarray(S, dtype=np.float64), 0.0)
+                       for S in (S_gt, S_est))
     S_gt = validate_shapes(S_gt, name='S_gt')
     S_est = validate_shapes(S_est, n_frames=S_gt.shape[0] // 3, n_points=S_gt.shape[1],
                             name='S_est')
+    if visible is not None and visible.shape != (S_gt.shape[0] // 3, S_gt.shape[1]):
+        raise InvalidInputError(f'visible must be (F, P) = {(S_gt.shape[0] // 3, S_gt.shape[1])};'
+                                f' got {visible.shape}')
     aligned, gt = procrustes_align(S_est, S_gt, scale=scale, reflection=reflection,
-                                   centre=centre)
+                                   centre=centre, visible=visible)
     diff = as_frames(aligned - gt, 3)
     norms = np.linalg.norm(as_frames(gt, 3), axis=(1, 2))
     if not (norms > 0).all():

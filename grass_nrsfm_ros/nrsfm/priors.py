@@ -5,7 +5,9 @@ second-difference operator over frames (applied to every coordinate of every poi
 the S-update ``min 1/2 ||W - R S||^2 + lam/2 ||D S||^2 + beta/2 ||S - S# - Y1/beta||^2`` couples
 frames: for every point the same symmetric positive definite banded ``(3F, 3F)`` system
 ``(blockdiag(R_f^T P R_f) + lam (D^T D kron I_3) + beta I) s = b`` (half-bandwidth 6), factored
-once per beta and solved for all P right-hand sides at once (O(F P) memory and time).
+once per beta and solved for all P right-hand sides at once (O(F P) memory and time). With
+per-entry data weights ``M: (F, 2, P)`` (tracks not seen in every frame) the data part is
+``blockdiag(R_f^T diag(M_f) R_f)``: one system per distinct pattern of weights over frames.
 """
 import numpy as np
 from scipy.linalg import cho_solve_banded, cholesky_banded
@@ -47,8 +49,18 @@ class TemporalSmoothness:
         self.F, self.lam = F, float(lam)
         self.dense = F <= DENSE_MAX_FRAMES and (points is None or points >= 3 * F)
         self.R = R
-        # data part, lower banded: A[3f+i, 3f+j] = (R_f^T P R_f)[i, j] for i >= j
-        data = np.einsum('fki,fkj->fij', R[:, :2, :], R[:, :2, :])
+        self.ab = self._bands(np.ones((F, 2)))
+        self._beta = None
+        self._solve = None
+        self._factors = {}              # pattern id -> banded factor at self._beta_weighted
+        self._beta_weighted = None
+
+    def _bands(self, m):
+        """Lower bands ``(HALF_BANDWIDTH + 1, 3F)`` of the system without beta for the data
+        weights ``m: (F, 2)`` of one track: ``A[3f+i, 3f+j] = (R_f^T diag(m_f) R_f)[i, j]``
+        (i >= j) plus the prior."""
+        F, R = self.F, self.R
+        data = np.einsum('fk,fki,fkj->fij', m, R[:, :2, :], R[:, :2, :])
         ab = np.zeros((HALF_BANDWIDTH + 1, 3 * F))
         for i in range(3):
             for j in range(i + 1):
@@ -57,9 +69,7 @@ class TemporalSmoothness:
         for d in range(3):
             for i in range(3):
                 ab[3 * d, 3 * np.arange(F) + i] += self.lam * dd[d]
-        self.ab = ab
-        self._beta = None
-        self._solve = None
+        return ab
 
     def _solver_at(self, beta):
         """``solve(b: (3F, P)) -> x: (3F, P)`` for the system at ``beta`` (factored once per
@@ -88,6 +98,30 @@ class TemporalSmoothness:
         F, P = self.F, W.shape[2]
         b = rhs_world + np.matmul(self.R[:, :2, :].transpose(0, 2, 1), W)
         return self._solver_at(beta)(b.reshape(3 * F, P)).reshape(F, 3, P)
+
+    def solve_weighted(self, W, M, rhs_world, beta, ids, patterns):
+        """As :meth:`solve` with data weights ``M: (F, 2, n)``: the columns are solved by
+        their pattern (``ids: (n,)`` into ``patterns: (k, F, 2)``), each pattern's banded
+        system factored once per beta (the all-ones pattern: :meth:`solve`'s)."""
+        F, n = self.F, W.shape[2]
+        b = (rhs_world + np.matmul(self.R[:, :2, :].transpose(0, 2, 1), M * W)).reshape(3 * F, n)
+        if beta != self._beta_weighted:
+            self._factors, self._beta_weighted = {}, beta
+        out = np.empty_like(b)
+        order = np.argsort(ids, kind='stable')
+        edges = np.flatnonzero(np.diff(ids[order])) + 1
+        for cols in np.split(order, edges):
+            pid = int(ids[cols[0]])
+            if (patterns[pid] == 1.0).all():
+                out[:, cols] = self._solver_at(beta)(b[:, cols])
+                continue
+            if pid not in self._factors:
+                ab = self._bands(patterns[pid])
+                ab[0] += beta
+                self._factors[pid] = cholesky_banded(ab, lower=True, check_finite=False)
+            out[:, cols] = cho_solve_banded((self._factors[pid], True), b[:, cols],
+                                            check_finite=False)
+        return out.reshape(F, 3, n)
 
     def energy(self, S):
         """``(lam/2) ||D S||^2`` for ``S: (F, 3, P)``."""

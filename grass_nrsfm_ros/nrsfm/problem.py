@@ -2,7 +2,8 @@
 and the report.
 
 Shapes: ``W: (2F, P)`` tracks, ``S: (3F, P)`` camera-frame shapes, ``R: (F, 3, 3)``
-world-to-camera rotations, ``known: (F,)`` bool, ``groups: (P,)`` integer spatial labels.
+world-to-camera rotations, ``known: (F,)`` bool, ``groups: (P,)`` integer spatial labels,
+``weights: (2F, P)`` the data term's per-entry weights in [0, 1] (None: every entry weighs 1).
 """
 from dataclasses import asdict, dataclass, field, replace
 
@@ -10,6 +11,7 @@ import numpy as np
 
 from .measurement import (centre, InvalidInputError, track_scale, validate_rotations,
                           validate_shapes, validate_tracks)
+from .missing import check_mask, complete, entry_weights, observation_mask
 
 
 @dataclass
@@ -63,6 +65,9 @@ class SolverReport:
     rotations_registered: bool = False           # R re-estimated from the refined shapes, kept
     thinned_points: int = 0                      # tracks left out of the solve, filled in
     fallback: str = None
+    observed_fraction: float = 1.0               # share of W's entries seen (masked solves)
+    completion: str = None                       # the completion of unseen entries (missing.py)
+    downweighted_tracks: list = field(default_factory=list)  # tracks the robust term weighed < 1
     notes: list = field(default_factory=list)    # automatic decisions worth knowing
     stages: list = field(default_factory=list)
     solves: list = field(default_factory=list)
@@ -93,13 +98,17 @@ class NRSfMResult:
     report: SolverReport
     C_s: np.ndarray = None
     C_t: np.ndarray = None
+    track_weights: np.ndarray = None      # (P,) the robust term's weights (None: all 1)
 
 
 @dataclass
 class Problem:
     """A checked problem: ``W: (2F, P)`` tracks as given, ``Wn: (2F, P)`` centred and divided by
     ``scale``, ``translation: (2F, 1)`` the row means; ``init`` the warm start (``given``: the
-    caller passed one), ``known: (F,)``, ``groups: (P,)`` dense labels or None."""
+    caller passed one), ``known: (F,)``, ``groups: (P,)`` dense labels or None; ``weights:
+    (2F, P)`` the data term's weights or None (every entry 1). Where entries are not seen
+    (weight 0), ``W`` holds them completed (:func:`.missing.complete`, the model named by
+    ``completion``) and ``translation`` is the completed rows' mean."""
     W: np.ndarray
     Wn: np.ndarray
     translation: np.ndarray
@@ -108,11 +117,22 @@ class Problem:
     known: np.ndarray
     groups: np.ndarray
     given: bool
+    weights: np.ndarray = None
+    completion: str = None
 
     @classmethod
-    def from_tracks(cls, W, init=None):
-        """Check ``W`` and ``init`` (raises InvalidInputError naming what is wrong)."""
-        W = validate_tracks(W, min_frames=3, min_points=4)
+    def from_tracks(cls, W, init=None, visible=None, random_state=0):
+        """Check ``W`` and ``init`` (raises InvalidInputError naming what is wrong). ``W`` may
+        hold NaN where a track is not seen, ``visible: (F, P)`` bool marks more unseen
+        entries; unseen entries are completed (``random_state``: the completion's hold-out)."""
+        W, mask = observation_mask(W, visible)
+        weights = completion = None
+        if mask is None:
+            W = validate_tracks(W, min_frames=3, min_points=4)
+        else:
+            check_mask(mask, min_frames=3, min_points=4)
+            weights = entry_weights(mask)
+            W, completion = complete(np.where(weights > 0, W, 0.0), mask, random_state)
         given = init is not None
         init = init if given else WarmStart()
         if not isinstance(init, WarmStart):
@@ -121,7 +141,17 @@ class Problem:
         Wn, translation = centre(W)
         scale = track_scale(Wn)
         Wn /= scale                                     # centred, unit RMS
-        return cls(W, Wn, translation, scale, init, known, groups, given)
+        return cls(W, Wn, translation, scale, init, known, groups, given, weights, completion)
+
+    @property
+    def mask(self):
+        """``(F, P)`` bool: the entries seen (None: all)."""
+        return None if self.weights is None else self.weights[0::2] > 0
+
+    def weighted(self, track_weights):
+        """The problem with each track's weights multiplied by ``track_weights: (P,)``."""
+        base = self.weights if self.weights is not None else np.ones_like(self.W)
+        return replace(self, weights=base * track_weights[None, :])
 
     @property
     def F(self):
@@ -142,8 +172,9 @@ class Problem:
         W = self.W[:, keep]
         S = None if self.init.S is None else np.asarray(self.init.S)[:, keep]
         groups = None if self.groups is None else dense_labels(self.groups[keep])
+        weights = None if self.weights is None else self.weights[:, keep]
         return replace(self, W=W, Wn=centre(W)[0] / self.scale, init=replace(self.init, S=S),
-                       groups=groups)
+                       groups=groups, weights=weights)
 
     def with_rotations(self, R):
         """The problem solved afresh with the rotations ``R: (F, 3, 3)`` given for every

@@ -73,8 +73,11 @@ class GrassmannNRSfM:
         return f'{type(self).__name__}({args})'
 
     # the chain ---------------------------------------------------------------------------------
-    def fit(self, W, init=None, progress=None, beta_max=None):
-        """Reconstruct ``W: (2F, P)``. ``init``: optional :class:`WarmStart`; ``progress``:
+    def fit(self, W, init=None, progress=None, beta_max=None, visible=None):
+        """Reconstruct ``W: (2F, P)``, NaN where a track is not seen (and ``visible: (F, P)``
+        bool, optional, False where not seen): every track in every frame, the unseen entries
+        filled by the low-rank model (:mod:`.missing`). ``init``: optional
+        :class:`WarmStart`; ``progress``:
         optional ``callback(iteration, report)`` called after every ADMM iteration;
         ``beta_max``: this call's cap on the penalty (None: the ``beta_max`` parameter), for
         every ADMM solve of the fit. The caller owns the schedule of a window: a sliding
@@ -89,11 +92,19 @@ class GrassmannNRSfM:
             values['beta_max'] = beta_max
         params = validate_solver(values)
         if params['projection'] == 'perspective':
+            if visible is not None and not np.all(visible):
+                raise InvalidInputError("projection 'perspective' takes complete tracks; "
+                                        'visible marks some entries unseen')
             return self._perspective(W, init, progress, beta_max)
         with one_blas_thread():
             start, timer = time.perf_counter(), Timer()
-            problem = Problem.from_tracks(W, init)
+            problem = Problem.from_tracks(W, init, visible, params['random_state'])
             report = SolverReport()
+            if problem.weights is not None:
+                report.notes.append(
+                    f'{100 * (1 - problem.mask.mean()):.1f} % of the entries not seen: '
+                    f'completed ({problem.completion}) for the rotations and the '
+                    'start, left out of the data term')
             t = time.perf_counter()
             report.stages.append(rotations.NAME)
             R = rotations.run(problem, params, report)
@@ -170,6 +181,9 @@ def shape_pass(problem, R, params, report, timer=None, progress=None, reason='sh
     report.K_s, report.K_t, report.N_s, report.N_t = K_s, K_t, N_s, N_t
     report.gamma = params['gamma'] * np.sqrt(F * P)
     report.warm_started_frames = int(solved.known.sum()) if solved.warm else 0
+    if problem.weights is not None:
+        report.observed_fraction = float(problem.mask.mean())
+        report.completion = problem.completion
     S, state = admm_solve(solved, R, params, spatial, report, timer, progress, reason)
 
     t = time.perf_counter()
@@ -207,7 +221,7 @@ def admm_solve(problem, R, params, spatial, report, timer, progress, reason):
     settings = config.admm_settings(params, F, P, problem.groups, spatial)
     state = AdmmState(problem.Wn, R, initial_shapes(problem, R), settings, problem.groups,
                       warm=problem.warm, beta=settings.beta0 if problem.init.resumed else None,
-                      smooth=smoothed(problem, params))
+                      smooth=smoothed(problem, params), weights=problem.weights)
     t = timer.add('initialisation', t)
     record = AdmmRun()
     report.iterations, report.objective, report.gaps = 0, record.objective, record.gaps
@@ -227,7 +241,8 @@ def admm_solve(problem, R, params, spatial, report, timer, progress, reason):
                            'returned the initial shapes')
     report.solves.append((reason, F, P, record.iterations))
     report.regrouped_points = state.moves
-    report.reprojection_relative = float(np.sqrt(state.data_error() / (2 * F * P)))
+    seen = 2 * F * P if problem.weights is None else max(float(problem.weights.sum()), 1e-300)
+    report.reprojection_relative = float(np.sqrt(state.data_error() / seen))
     report.reprojection_rms = report.reprojection_relative * problem.scale
     S_cam = np.matmul(R, state.S_world_original_order())
     S_cam *= problem.scale

@@ -351,3 +351,60 @@ def default_sequence():
     """The quick start's embedded default: 'bending', 60 frames, 3,000 points, orbiting
     camera, no noise."""
     return make_sequence('bending', n_frames=60, n_points=3000, camera='orbit', seed=0)
+
+
+# ---------------------------------------------------------------------------------------------
+# What trackers deliver: occlusions and drift
+
+#: occlusion_mask: a block hides a neighbourhood of between 2 % and 10 % of the tracks (in the
+#: first frame's image) for between a tenth and half of the frames
+_BLOCK_TRACKS = (0.02, 0.10)
+_BLOCK_FRAMES = (0.1, 0.5)
+
+
+def occlusion_mask(W, fraction, rng):
+    """``visible: (F, P)`` bool with about ``fraction`` (at most 0.4) of the entries of ``W:
+    (2F, P)`` hidden in occlusion-like blocks: a neighbourhood of tracks (the nearest, in the
+    first frame's image, to a random track not yet hidden) hidden over a contiguous run of
+    frames, as by an occluder passing once; each track is hidden by at most one block."""
+    if not 0.0 <= fraction <= 0.4:
+        raise ValueError(f'fraction must be in [0, 0.4]; got {fraction!r}')
+    F, P = W.shape[0] // 2, W.shape[1]
+    uv = W[:2].T
+    visible = np.ones((F, P), dtype=bool)
+    free = np.ones(P, dtype=bool)
+    while 1.0 - visible.mean() < fraction and free.any():
+        k = max(1, int(P * rng.uniform(*_BLOCK_TRACKS)))
+        centre_track = rng.choice(np.flatnonzero(free))
+        dist = np.where(free, ((uv - uv[centre_track]) ** 2).sum(axis=1), np.inf)
+        near = np.argsort(dist)[:min(k, int(free.sum()))]
+        length = max(1, int(F * rng.uniform(*_BLOCK_FRAMES)))
+        start = rng.integers(0, F - length + 1)
+        visible[start:start + length, near] = False
+        free[near] = False
+    return visible
+
+
+def image_pixel(W):
+    """The length of one pixel in the units of ``W: (2F, P)``: the sequence's largest centred
+    coordinate max|W - row means| taken as 200 px (an object filling a 640 x 480 image)."""
+    return float(np.abs(centre(W)[0]).max()) / 200.0
+
+
+def drifting_tracks(W, share, max_px, rng):
+    """``(W_drift: (2F, P), drifting: (P,) bool)``: a ``share`` of the tracks of ``W`` given
+    a slowly growing offset, as a tracker's drift: from a random frame in the first half it
+    grows linearly along a fixed random direction to between half of and ``max_px`` pixels
+    (:func:`image_pixel`) at the last frame."""
+    F, P = W.shape[0] // 2, W.shape[1]
+    drifting = np.zeros(P, dtype=bool)
+    drifting[rng.choice(P, max(1, int(round(share * P))), replace=False)] = True
+    n = int(drifting.sum())
+    start = rng.integers(0, max(1, F // 2), n)
+    ramp = np.clip((np.arange(F)[:, None] - start) / np.maximum(F - 1 - start, 1), 0.0, 1.0)
+    angle = rng.uniform(0.0, 2 * np.pi, n)
+    size = rng.uniform(0.5, 1.0, n) * max_px * image_pixel(W)
+    offset = ramp[:, None, :] * (size * np.stack([np.cos(angle), np.sin(angle)]))[None]
+    out = W.copy()
+    out.reshape(F, 2, P)[:, :, drifting] += offset
+    return out, drifting

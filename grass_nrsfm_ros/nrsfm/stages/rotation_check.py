@@ -35,7 +35,10 @@ def score(problem, R, params, report, solve_shapes, name):
     rng = np.random.default_rng(params['random_state'])
     idx = np.sort(rng.choice(P, CHECK_POINTS, replace=False)) \
         if P > CHECK_POINTS else np.arange(P)
-    subset = Problem.from_tracks(problem.Wn[:, idx], WarmStart(R=R))
+    if problem.weights is None:
+        subset = Problem.from_tracks(problem.Wn[:, idx], WarmStart(R=R))
+    else:                                       # the subset's weights and completed tracks
+        subset = problem.tracks(idx).with_rotations(R)
     sub_report = SolverReport()
     result = solve_shapes(subset, np.array(R, dtype=np.float64), {**params, **CHECK_PARAMS},
                           sub_report, reason=f'rotation check: {name}')
