@@ -68,6 +68,7 @@ _MAX_REFINEMENT = 2.0              # px: prediction and its LK refinement disagr
 _COVER_RADIUS = 0.75               # grid steps: a grid point with no track this near is uncovered
 _BORDER = 2.0                      # a track closer than this to the image edge has left it
 _STALE_SHARE = 0.02                # a new keyframe when more of the tracks than this are stale
+_KEYFRAME_MARGIN = 24              # px around the tracks where a keyframe is normalised
 _FLOW_MARGIN = 24                  # px around the tracks where DIS last -> current runs
 _WARP_MARGIN = 8                   # px around a keyframe's tracks warped (plus the LK window)
 _MIN_BOX = 48                      # px: the smallest box DIS and the warp run in
@@ -298,16 +299,16 @@ class DenseTracker:
         if len(uv) == 0:
             return uv, zncc, ok
         x0, y0, x1, y1 = _box(guess, grey.shape, _WARP_MARGIN + self.lk_window)
-        raw = grey[y0:y1, x0:x1].astype(np.float32)
+        raw = grey[y0:y1, x0:x1]
         current = _Crop(_normalise(raw), np.float32([x0, y0]), raw)
         for key in np.unique(self._key):
             rows = np.flatnonzero(self._key == key)
             uv[rows], zncc[rows], ok[rows] = self._refine_keyframe(
                 self._keyframes[key], current, self._uv_ref[rows], self._ref_patches[rows],
-                guess[rows])
+                guess[rows], both_ways=bool((self._misses[rows] == 0).any()))
         return uv, zncc, ok & np.isfinite(uv[:, 0]) & np.isfinite(uv[:, 1])
 
-    def _refine_keyframe(self, keyframe, current, ref, patches, guess):
+    def _refine_keyframe(self, keyframe, current, ref, patches, guess, both_ways=True):
         """Tracks of one keyframe at ``ref (P, 2)`` in it, with their reference
         ``patches (P, n)``: the frame ``current`` (a :class:`_Crop`) is warped into the
         keyframe by the displacement field of the ``guess`` es (where the method warps)
@@ -341,7 +342,7 @@ class DenseTracker:
                 ok &= np.linalg.norm(where - local, axis=1) <= _MAX_REFINEMENT
         uv = where + origin + sample(field, where)
         zncc = _patch_zncc(patches, _smoothed(warped), where)
-        if self._refine_lk:
+        if self._refine_lk and both_ways:
             back, both = self._refine_in_frame(keyframe, current, ref, uv.astype(np.float32))
             uv = np.where(both[:, None], 0.5 * (uv + back), uv)
         if self._refine_lk and self.min_zncc < _SMOOTH_ZNCC:
@@ -397,9 +398,7 @@ class DenseTracker:
         oldest keyframe beyond ``max_keyframes``) are re-anchored to it, keeping their ids;
         with a ``region`` (None: no births), tracks are born on its uncovered cells."""
         key = self._frame
-        raw = grey.astype(np.float32)
-        normalised = _normalise(raw)
-        self._keyframes[key] = _Keyframe(raw, normalised, _smoothed(normalised))
+        self._keyframes[key] = self._keyframe_images(grey, region)
         healthy = self._misses == 0           # missed tracks keep their keyframe
         older, held = np.unique(self._key[healthy & (self._key != key)], return_counts=True)
         if len(older) >= self.max_keyframes:     # those holding fewest tracks are merged
@@ -417,6 +416,22 @@ class DenseTracker:
             counts['born'] = self._birth(grey, key)
         for old in set(self._keyframes) - set(self._key.tolist()) - {key}:
             del self._keyframes[old]
+
+    def _keyframe_images(self, grey, region):
+        """The :class:`_Keyframe` of ``grey``, normalised only in the box where its
+        tracks (and births on ``region``) will be measured (128 elsewhere)."""
+        points = self._uv
+        if region is not None:
+            points = np.concatenate([points, region_cells(region, self.step)])
+        if len(points) == 0:
+            return _Keyframe(grey, np.full(grey.shape, 128, np.uint8),
+                             np.full(grey.shape, 128, np.uint8))
+        x0, y0, x1, y1 = _box(points, grey.shape, _KEYFRAME_MARGIN + self.lk_window)
+        normalised = np.full(grey.shape, 128, np.uint8)
+        smoothed = normalised.copy()
+        normalised[y0:y1, x0:x1] = _normalise(grey[y0:y1, x0:x1])
+        smoothed[y0:y1, x0:x1] = _smoothed(normalised[y0:y1, x0:x1])
+        return _Keyframe(grey, normalised, smoothed)
 
     def _birth(self, grey, key):
         """New tracks on the uncovered, textured grid cells of the region, anchored to the
@@ -720,8 +735,23 @@ def _displacement_field(points, moves, size, step):
     a grid of ``step`` pixels, normalised Gaussian smoothing (about 4 px), upsampled."""
     h, w = size
     s = int(step)
+    coarse = _coarse_field(points, moves, size, s)
+    rows, cols = coarse.shape[:2]
+    fine = cv2.resize(coarse, (cols * s, rows * s), interpolation=cv2.INTER_LINEAR)
+    return np.ascontiguousarray(fine[s:s + h, s:s + w])
+
+
+def _on_coarse_grid(points, step):
+    """Coordinates ``(P, 2)`` of box pixels ``points`` on :func:`_coarse_field`'s grid."""
+    return (points - (step - 1) / 2.0) / step + 1.0     # node j sits at (j - 1) s + (s-1)/2
+
+
+def _coarse_field(points, moves, size, s):
+    """:func:`_displacement_field` on its grid of ``s`` pixels: ``(h // s + 3, w // s + 3,
+    2) float32`` (see :func:`_on_coarse_grid`)."""
+    h, w = size
     rows, cols = h // s + 3, w // s + 3
-    where = (points - (s - 1) / 2.0) / s + 1.0            # coarse node j sits at j s + (s-1)/2
+    where = _on_coarse_grid(points, s)
     base = np.floor(where).astype(np.int64)
     frac = (where - base).astype(np.float32)
     index, weight = [], []
@@ -737,9 +767,7 @@ def _displacement_field(points, moves, size, step):
     acc = acc.astype(np.float32)
     sigma = max(1.0, _FIELD_SIGMA / s)
     acc = cv2.GaussianBlur(acc.reshape(3, rows, cols).transpose(1, 2, 0), (0, 0), sigma)
-    coarse = acc[..., :2] / np.maximum(acc[..., 2:], 1e-6)
-    fine = cv2.resize(coarse, (cols * s, rows * s), interpolation=cv2.INTER_LINEAR)
-    return np.ascontiguousarray(fine[s:s + h, s:s + w])
+    return np.ascontiguousarray(acc[..., :2] / np.maximum(acc[..., 2:], 1e-6))
 
 
 def _neighbour_moves(points, moves, trusted, size, step):
@@ -748,8 +776,8 @@ def _neighbour_moves(points, moves, trusted, size, step):
     than 4 tracks are trusted, the moves themselves."""
     if trusted.sum() < 4:
         return moves
-    field = _displacement_field(points[trusted], moves[trusted].astype(np.float32), size, step)
-    return sample(field, points).astype(np.float64)
+    coarse = _coarse_field(points[trusted], moves[trusted].astype(np.float32), size, int(step))
+    return sample(coarse, _on_coarse_grid(points, int(step))).astype(np.float64)
 
 
 def _smoothed(image):
