@@ -8,10 +8,15 @@ normalised (``K^-1 [u, v, 1]``) and solved with the perspective model (solver pa
 ``projection`` 'auto'): ``S`` is in the camera frame, its pinhole image ``K [x/z, y/z, 1]`` the
 tracks, in units of each frame's mean depth (``--scale``: that depth, e.g. the camera's
 distance to the surface in metres, for metres). Without ``K`` the pixels are solved as
-orthographic projections, as before, with a warning. The solver needs complete tracks: an
-input whose ``visible: (F, P)`` marks entries as unobserved is refused, unless
-``--complete-tracks`` keeps the tracks seen in every frame (their columns are saved as
-``points``, which ``evaluate`` uses). A bag directory or
+orthographic projections, as before, with a warning. Tracks need not be complete: ``W`` holds
+NaN where a track is not seen (or ``visible: (F, P)`` says so), and every track is
+reconstructed in every frame (the unseen entries filled by the low-rank model; the perspective
+model takes complete tracks, so incomplete ones are solved orthographically, with a warning);
+``OUT`` then gets ``visible: (F, P)``, the entries observed (the others were filled), and
+``track_weights: (P,)``, the robust data term's weights (1: not down-weighted). Frames seeing
+fewer than 4 tracks and tracks seen in fewer than 2 frames are left out with a warning (NaN in
+``S``, ``R`` and ``translation``). ``--complete-tracks`` reconstructs only the tracks seen in
+every frame (their columns saved as ``points``, which ``evaluate`` uses). A bag directory or
 ``.mcap``/``.bag`` file runs the node's live pipeline offline (each window solved inline as it
 closes) and writes an output bag (there, each window uses the tracks it sees throughout):
 :func:`reconstruct_bag`, which the demo uses too, owns that offline run. The bag's intrinsics
@@ -39,6 +44,7 @@ from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM
 from grass_nrsfm_ros.nrsfm.camera import (intrinsics, normalise, resolved_projection,
                                           warn_orthographic)
 from grass_nrsfm_ros.nrsfm.measurement import InvalidInputError, validate_shapes
+from grass_nrsfm_ros.nrsfm.missing import MIN_FRAME_TRACKS, MIN_TRACK_FRAMES
 from grass_nrsfm_ros.params import load_config, solver_kwargs
 from grass_nrsfm_ros.pipeline import live_events, make_pipeline
 
@@ -59,8 +65,9 @@ def add_arguments(parser):
                         help="with K: each frame's mean depth in the output's units (default "
                              '1; the distance to the surface in metres gives metres)')
     parser.add_argument('--complete-tracks', action='store_true',
-                        help='when visible marks missing entries, reconstruct only the tracks '
-                             'seen in every frame (saved as `points` in OUT)')
+                        help='reconstruct only the tracks seen in every frame (saved as '
+                             '`points` in OUT) instead of every track with its unseen '
+                             'entries filled')
 
 
 def solver_from_config(path):
@@ -89,27 +96,94 @@ class Progress:
             sys.stderr.write('\n')
 
 
+@dataclass
+class Tracks:
+    """The tracks of an input .npz as solved: ``W: (2F, P)`` with NaN where not seen, the
+    ground truth ``S_gt: (3F, P)`` or None (NaN allowed where not seen), ``points: (P',)`` the
+    columns solved with --complete-tracks (None: all), ``seen: (F, P)`` the entries observed
+    (None: all), ``frames: (F',)`` and ``tracks: (P'',)`` those solved (None: all)."""
+
+    W: np.ndarray
+    S_gt: np.ndarray = None
+    points: np.ndarray = None
+    seen: np.ndarray = None
+    frames: np.ndarray = None
+    tracks: np.ndarray = None
+
+
+def warn(path, text):
+    print(f'{path}: warning: {text}', file=sys.stderr)
+
+
+def observation(W, visible, path):
+    """``seen: (F, P)`` the entries of ``W: (2F, P)`` observed (``visible``, both u and v
+    finite); warns about an entry with only one of u, v finite and one visible but not
+    finite (both then unseen)."""
+    F, P = W.shape[0] // 2, W.shape[1]
+    finite = np.isfinite(W).reshape(F, 2, P)
+    half = int((finite[:, 0] != finite[:, 1]).sum())
+    if half:
+        warn(path, f'{half} entries have a finite u or v but not both: taken as not seen')
+    seen = finite.all(axis=1)
+    if visible is not None:
+        complete_tracks(visible, F, P, path)                      # checks the shape
+        wrong = int((visible & ~seen).sum())
+        if wrong:
+            warn(path, f'{wrong} entries marked visible are not finite: taken as not seen')
+        seen &= visible
+    return seen
+
+
+def usable(seen, path):
+    """``(frames: (F',), tracks: (P',))`` the frames and tracks a masked solve can use: it
+    leaves out, with a warning, frames seeing fewer than MIN_FRAME_TRACKS tracks and tracks
+    seen in fewer than MIN_TRACK_FRAMES frames (until none is left to leave out)."""
+    frames, tracks = np.arange(seen.shape[0]), np.arange(seen.shape[1])
+    while True:
+        sub = seen[np.ix_(frames, tracks)]
+        bad_f = sub.sum(axis=1) < MIN_FRAME_TRACKS
+        bad_t = sub.sum(axis=0) < MIN_TRACK_FRAMES
+        if not (bad_f.any() or bad_t.any()):
+            return frames, tracks
+        if bad_f.any():
+            warn(path, f'{int(bad_f.sum())} frames see fewer than {MIN_FRAME_TRACKS} tracks '
+                       f'(first: frame {int(frames[bad_f][0])}): left out (NaN in OUT)')
+            frames = frames[~bad_f]
+        else:
+            warn(path, f'{int(bad_t.sum())} tracks are seen in fewer than {MIN_TRACK_FRAMES} '
+                       f'frames (first: track {int(tracks[bad_t][0])}): left out (NaN in OUT)')
+            tracks = tracks[~bad_t]
+
+
 def observed_tracks(path, complete_only):
-    """``(W: (2F, P'), S_gt: (3F, P') or None, points: (P',) or None)`` from an .npz: all
-    tracks, or with ``complete_only`` those seen in every frame (``points``: their columns)
-    where ``visible`` marks missing entries (refused otherwise)."""
+    """The :class:`Tracks` of an .npz: every track, its unseen entries NaN (frames and tracks
+    a solve cannot use left out, with a warning), or with ``complete_only`` the tracks seen in
+    every frame."""
     W, S_gt, visible = load_tracks(path)
+    if W.ndim != 2 or W.shape[0] % 2:
+        return Tracks(W)                         # the solver says what is wrong
     F, P = W.shape[0] // 2, W.shape[1]
     if S_gt is not None:                 # checked before a long solve, not after it
-        S_gt = validate_shapes(S_gt, n_frames=F, n_points=P, name=f'{path}: ground truth S')
-    if visible is None:
-        return W, S_gt, None
-    points = complete_tracks(visible, F, P, path)
-    if points.size == P:
-        return W, S_gt, None
-    if not complete_only:
-        raise UserError(
-            f'{path}: visible marks {int((~visible).sum())} of {visible.size} entries as '
-            f'unobserved ({P - points.size} of {P} tracks incomplete); the solver needs '
-            f'complete tracks: --complete-tracks reconstructs the {points.size} tracks seen '
-            'in every frame')
-    print(f'{path}: keeping the {points.size} of {P} tracks seen in every frame')
-    return W[:, points], None if S_gt is None else S_gt[:, points], points
+        validate_shapes(np.nan_to_num(S_gt), n_frames=F, n_points=P,
+                        name=f'{path}: ground truth S')
+    seen = observation(W, visible, path)
+    if seen.all():
+        return Tracks(W, S_gt)
+    if not seen.any():
+        raise UserError(f'{path}: W has no observed entry (every entry non-finite or not '
+                        'visible)')
+    if complete_only:
+        points = np.flatnonzero(seen.all(axis=0))
+        print(f'{path}: keeping the {points.size} of {P} tracks seen in every frame')
+        return Tracks(W[:, points], None if S_gt is None else S_gt[:, points], points)
+    frames, tracks = usable(seen, path)
+    if frames.size < 3 or tracks.size < 4:
+        raise UserError(f'{path}: {frames.size} frames and {tracks.size} tracks are seen '
+                        'often enough; at least 3 frames and 4 tracks needed')
+    W = np.where(np.repeat(seen, 2, axis=0), W, np.nan)
+    print(f'{path}: {int((~seen).sum())} of {seen.size} entries not seen '
+          f'({int((~seen.all(axis=0)).sum())} of {P} tracks incomplete): filled')
+    return Tracks(W, S_gt, seen=seen, frames=frames, tracks=tracks)
 
 
 def check_writable(path):
@@ -157,12 +231,20 @@ def check_scale(scale):
     return float(scale)
 
 
-def solved_tracks(W, K, solver, scale):
+def solved_tracks(W, K, solver, scale, complete=True):
     """``(W_solved: (2F, P), projection)``: the tracks as the solver takes them (normalised
     with K under the perspective model) and the projection resolved (the solver's parameter
-    set to it); warns once where pixels are solved without K."""
+    set to it); warns once where pixels are solved without K, and where incomplete tracks
+    (not ``complete``) make 'auto' orthographic."""
     projection = resolved_projection(solver.projection, K)
     check_scale(scale)
+    if projection == 'perspective' and not complete:
+        if solver.projection == 'perspective':
+            raise UserError("projection 'perspective' takes complete tracks; these have "
+                            'unseen entries (--complete-tracks keeps the complete ones)')
+        print('warning: the perspective model takes complete tracks: the incomplete tracks '
+              'are solved as orthographic projections of the pixels', file=sys.stderr)
+        projection = 'orthographic'
     if projection == 'orthographic' and scale != 1.0:
         raise UserError('--scale applies to the perspective model (with K)')
     solver.set_params(projection=projection)
@@ -173,11 +255,62 @@ def solved_tracks(W, K, solver, scale):
     return W, projection
 
 
+def spread(tracks, result):
+    """The result's arrays over every frame and track of the input: ``{name: array}``, NaN
+    (groups -1) for the frames and tracks left out; ``visible`` and ``track_weights``."""
+    F, P = tracks.W.shape[0] // 2, tracks.W.shape[1]
+    weights = result.track_weights if result.track_weights is not None else \
+        np.ones(result.S.shape[1])
+    if tracks.frames is None:
+        out = {'S': result.S, 'R': result.R, 'translation': result.translation,
+               'groups': result.groups, 'track_weights': weights}
+        if tracks.seen is not None:
+            out['visible'] = tracks.seen
+        return out
+    f, p = tracks.frames, tracks.tracks
+    S = np.full((F, 3, P), np.nan)
+    S[np.ix_(f, np.arange(3), p)] = result.S.reshape(f.size, 3, p.size)
+    R = np.full((F, 3, 3), np.nan)
+    R[f] = result.R
+    translation = np.full((F, 2, 1), np.nan)
+    translation[f] = result.translation.reshape(f.size, 2, 1)
+    groups = np.full(P, -1, dtype=np.asarray(result.groups).dtype)
+    groups[p] = result.groups
+    track_weights = np.full(P, np.nan)
+    track_weights[p] = weights
+    visible = np.zeros((F, P), dtype=bool)
+    visible[np.ix_(f, p)] = tracks.seen[np.ix_(f, p)]
+    return {'S': S.reshape(3 * F, P), 'R': R, 'translation': translation.reshape(2 * F, 1),
+            'groups': groups, 'track_weights': track_weights, 'visible': visible}
+
+
+def print_errors(S, tracks, scaled):
+    """e3D of ``S: (3F, P)`` against the ground truth: over every entry where the truth is
+    known, and over the observed ones where some were not."""
+    F, P = S.shape[0] // 3, S.shape[1]
+    known = (np.isfinite(tracks.S_gt).reshape(F, 3, P).all(axis=1)
+             & np.isfinite(S).reshape(F, 3, P).all(axis=1))
+    label = f'per-frame Procrustes, {"with" if scaled else "no"} scale'
+    if known.all():
+        print(f'e3D ({label}): {e3d(S, tracks.S_gt, scale=scaled):.4f}')
+    else:
+        print(f'e3D ({label}, the {int(known.sum())} entries with truth): '
+              f'{e3d(S, tracks.S_gt, scale=scaled, visible=known):.4f}')
+    if tracks.seen is not None and (known & ~tracks.seen).any():
+        seen = known & tracks.seen
+        print(f'e3D over the observed entries: '
+              f'{e3d(S, tracks.S_gt, scale=scaled, visible=seen):.4f}')
+
+
 def reconstruct_npz(args):
-    W, S_gt, points = observed_tracks(args.input, args.complete_tracks)
+    tracks = observed_tracks(args.input, args.complete_tracks)
     solver, _ = solver_from_config(args.config)
     K = chosen_camera(args)
-    W_in, projection = solved_tracks(W, K, solver, args.scale)
+    W = tracks.W
+    if tracks.frames is not None:
+        W = W.reshape(-1, 2, W.shape[1])[np.ix_(tracks.frames, [0, 1], tracks.tracks)]
+        W = W.reshape(2 * tracks.frames.size, tracks.tracks.size)
+    W_in, projection = solved_tracks(W, K, solver, args.scale, tracks.seen is None)
     check_writable(args.output)                          # before a long solve, not after it
     progress = Progress(not args.quiet)
     try:
@@ -185,26 +318,28 @@ def reconstruct_npz(args):
     finally:
         progress.close()
     report = result.report
-    S = result.S * args.scale if projection == 'perspective' else result.S
-    extra = {} if points is None else {'points': points}
+    arrays = spread(tracks, result)
+    if projection == 'perspective':
+        arrays['S'] = arrays['S'] * args.scale
+    extra = {} if tracks.points is None else {'points': tracks.points}
     if K is not None:
         extra['K'] = K
-    np.savez_compressed(args.output, S=S, R=result.R, translation=result.translation,
-                        groups=result.groups, projection=projection,
-                        report=json.dumps(report.to_dict()), **extra)
-    F, P = W.shape[0] // 2, W.shape[1]
+    np.savez_compressed(args.output, projection=projection,
+                        report=json.dumps(report.to_dict()), **arrays, **extra)
+    F, P = tracks.W.shape[0] // 2, tracks.W.shape[1]
     print(f'{args.input}: F={F} P={P} {projection} K_rot={report.K_rot} '
           f'iterations={report.iterations} seconds={report.seconds["total"]:.1f} -> '
           f'{args.output}')
+    if report.downweighted_tracks:
+        print(f'robust: {len(report.downweighted_tracks)} tracks down-weighted (track_weights '
+              'in OUT)')
     if report.perspective is not None:
         p = report.perspective
         print(f'perspective: kept round {p["kept"]} of {len(p["rounds"]) - 1} '
               f'({p["stopped"]}); S in the camera frame, each frame\'s mean depth '
               f'{args.scale:g}')
-    if S_gt is not None:
-        scaled = projection == 'perspective'          # the monocular scale is unknown
-        print(f'e3D (per-frame Procrustes, {"with" if scaled else "no"} scale): '
-              f'{e3d(S, S_gt, scale=scaled):.4f}')
+    if tracks.S_gt is not None:
+        print_errors(arrays['S'], tracks, projection == 'perspective')  # scale unknown there
     return 0
 
 

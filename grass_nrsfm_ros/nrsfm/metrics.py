@@ -59,19 +59,26 @@ def e3d(S_est, S_gt, *, scale=False, reflection=True, centre=True, per_frame=Fal
 
     ``S_est, S_gt: (3F, P)``. With ``per_frame=True`` returns the ``(F,)`` errors instead.
     ``visible: (F, P)`` bool: each frame over those points only (both S may be non-finite
-    elsewhere).
+    elsewhere), the frames with none left out (``per_frame``: NaN there).
     """
     if visible is not None:
         visible = np.asarray(visible, dtype=bool)
-        rows = np.repeat(visible, 3, axis=0)
-        S_gt, S_est = (np.where(rows, np.asarray(S, dtype=np.float64), 0.0)
+        expected = (np.shape(S_gt)[0] // 3, np.shape(S_gt)[1])
+        if visible.shape != expected or np.shape(S_est) != np.shape(S_gt):
+            raise InvalidInputError(f'visible must be (F, P) = {expected} and S_est as S_gt '
+                                    f'{np.shape(S_gt)}; got {visible.shape}, '
+                                    f'{np.shape(S_est)}')
+        if per_frame:
+            out = np.full(visible.shape[0], np.nan)
+        frames = np.flatnonzero(visible.any(axis=1))
+        rows = (3 * frames[:, None] + np.arange(3)).ravel()
+        visible = visible[frames]
+        S_gt, S_est = (np.where(np.repeat(visible, 3, axis=0),
+                                np.asarray(S, dtype=np.float64)[rows], 0.0)
                        for S in (S_gt, S_est))
     S_gt = validate_shapes(S_gt, name='S_gt')
     S_est = validate_shapes(S_est, n_frames=S_gt.shape[0] // 3, n_points=S_gt.shape[1],
                             name='S_est')
-    if visible is not None and visible.shape != (S_gt.shape[0] // 3, S_gt.shape[1]):
-        raise InvalidInputError(f'visible must be (F, P) = {(S_gt.shape[0] // 3, S_gt.shape[1])};'
-                                f' got {visible.shape}')
     aligned, gt = procrustes_align(S_est, S_gt, scale=scale, reflection=reflection,
                                    centre=centre, visible=visible)
     diff = as_frames(aligned - gt, 3)
@@ -80,6 +87,9 @@ def e3d(S_est, S_gt, *, scale=False, reflection=True, centre=True, per_frame=Fal
         raise InvalidInputError(f'S_gt frame {int(np.argmin(norms))} has zero norm (a single '
                                 'point once centred): e3D is undefined')
     err = np.linalg.norm(diff, axis=(1, 2)) / norms
+    if visible is not None and per_frame:
+        out[frames] = err
+        return out
     return err if per_frame else float(err.mean())
 
 
