@@ -4,10 +4,11 @@
 ``W: (2F, P)`` tracks; ``NRSfMResult.S: (3F, P)`` camera-frame shapes, ``R: (F, 3, 3)``,
 ``translation: (2F, 1)``, ``groups: (P,)`` spatial labels, ``report: SolverReport``.
 
-The chain (:meth:`GrassmannNRSfM.fit`): rotations -> rotation check -> the shape pass
-(:func:`shape_pass`: thinning -> ADMM -> refinement -> fill) -> registration (the shape pass
-again with registered rotations). The parameters are declared in :mod:`.schema`; each ADMM
-solve gets its own settings (:mod:`.config`), the validated parameters are never changed.
+The chain (:meth:`GrassmannNRSfM.fit`): (robust track weights ->) rotations -> rotation check
+-> the shape pass (:func:`shape_pass`: thinning -> ADMM -> refinement -> fill) -> registration
+(the shape pass again with registered rotations). The parameters are declared in
+:mod:`.schema`; each ADMM solve gets its own settings (:mod:`.config`), the validated
+parameters are never changed.
 With ``projection='perspective'`` ``W`` holds normalised pinhole coordinates and the whole
 chain runs inside the projective-depth iteration (:mod:`.perspective`); ``S`` is then in the
 camera frame, projecting onto ``W``, each frame's mean depth 1.
@@ -24,7 +25,8 @@ from .measurement import from_frames, InvalidInputError
 from .perspective import PerspectiveNRSfM
 from .problem import initial_shapes, NRSfMResult, Problem, SolverReport
 from .schema import SOLVER_PARAMS, SOLVER_SPECS, validate_solver
-from .stages import fill, refinement, registration, rotation_check, rotations, thinning
+from .stages import (fill, refinement, registration, robust, rotation_check, rotations,
+                     thinning)
 
 #: BLAS threads inside fit: the rotation step, the initialisation and the iterations make
 #: thousands of small BLAS calls, faster on one thread, and the thread count changes rounding
@@ -100,7 +102,11 @@ class GrassmannNRSfM:
             start, timer = time.perf_counter(), Timer()
             problem = Problem.from_tracks(W, init, visible, params['random_state'])
             report = SolverReport()
-            if problem.weights is not None:
+            track_weights = None
+            if robust.applies(problem, params):
+                report.stages.append(robust.NAME)
+                problem, track_weights = robust.run(problem, params, report)
+            if problem.completion is not None:
                 report.notes.append(
                     f'{100 * (1 - problem.mask.mean()):.1f} % of the entries not seen: '
                     f'completed ({problem.completion}) for the rotations and the '
@@ -116,6 +122,9 @@ class GrassmannNRSfM:
             report.seconds = dict(timer.seconds, total=time.perf_counter() - start)
             if registration.applies(problem, params, result):
                 result = self._registered(problem, params, result, progress)
+            if track_weights is not None:
+                result.report.downweighted_tracks = report.downweighted_tracks
+                result = replace(result, track_weights=track_weights)
             return result
 
     def _perspective(self, W, init, progress, beta_max):
