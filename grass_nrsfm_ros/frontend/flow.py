@@ -331,7 +331,8 @@ class DenseTracker:
         x0, y0, x1, y1 = _box(ref, shape, _WARP_MARGIN + self.lk_window)
         origin = np.float32([x0, y0])
         local = ref - origin
-        field = _displacement_field(local, guess - ref, (y1 - y0, x1 - x0), self.step)
+        splat = _splat(local, (y1 - y0, x1 - x0), self.step)
+        field = _displacement_field(local, guess - ref, (y1 - y0, x1 - x0), self.step, splat)
         warped = _normalise(_warp(current.raw, current.origin, field, origin))
         where, ok = local, np.ones(len(ref), bool)
         if self._refine_lk:
@@ -348,8 +349,7 @@ class DenseTracker:
         if self._refine_lk and self.min_zncc < _SMOOTH_ZNCC:
             weight = np.clip((_SMOOTH_ZNCC - zncc) / (_SMOOTH_ZNCC - self.min_zncc), 0.0, 1.0)
             uv = uv + weight[:, None] * (_neighbour_moves(
-                local, uv - ref, ok & (zncc >= self.min_zncc), (y1 - y0, x1 - x0), self.step)
-                - (uv - ref))
+                splat, local, uv - ref, ok & (zncc >= self.min_zncc)) - (uv - ref))
         return uv, zncc, ok
 
     def _refine_in_frame(self, keyframe, current, ref, guess):
@@ -729,13 +729,14 @@ def _sub_crop(crop, points, margin):
                  None if crop.raw is None else crop.raw[y0:y1, x0:x1])
 
 
-def _displacement_field(points, moves, size, step):
+def _displacement_field(points, moves, size, step, splat=None):
     """Dense displacement ``(h, w, 2) float32`` of a box ``size (h, w)`` from scattered
     ``points (P, 2)`` (box pixels) that moved by ``moves (P, 2)``: splatted bilinearly onto
-    a grid of ``step`` pixels, normalised Gaussian smoothing (about 4 px), upsampled."""
+    a grid of ``step`` pixels, normalised Gaussian smoothing (about 4 px), upsampled
+    (``splat``: :func:`_splat` of the points, when already computed)."""
     h, w = size
     s = int(step)
-    coarse = _coarse_field(points, moves, size, s)
+    coarse = _coarse_field(splat or _splat(points, size, s), moves)
     rows, cols = coarse.shape[:2]
     fine = cv2.resize(coarse, (cols * s, rows * s), interpolation=cv2.INTER_LINEAR)
     return np.ascontiguousarray(fine[s:s + h, s:s + w])
@@ -746,9 +747,10 @@ def _on_coarse_grid(points, step):
     return (points - (step - 1) / 2.0) / step + 1.0     # node j sits at (j - 1) s + (s-1)/2
 
 
-def _coarse_field(points, moves, size, s):
-    """:func:`_displacement_field` on its grid of ``s`` pixels: ``(h // s + 3, w // s + 3,
-    2) float32`` (see :func:`_on_coarse_grid`)."""
+def _splat(points, size, s):
+    """Bilinear splatting of ``points (P, 2)`` (box pixels of a box ``size (h, w)``) onto
+    the grid of ``s`` pixels of :func:`_coarse_field`: ``(index (4P,), weight (4P,),
+    (rows, cols), s)``."""
     h, w = size
     rows, cols = h // s + 3, w // s + 3
     where = _on_coarse_grid(points, s)
@@ -761,7 +763,16 @@ def _coarse_field(points, moves, size, s):
                           * (frac[:, 1] if dr else 1 - frac[:, 1]))
             index.append(np.clip(base[:, 1] + dr, 0, rows - 1) * cols
                          + np.clip(base[:, 0] + dc, 0, cols - 1))
-    index, weight = np.concatenate(index), np.concatenate(weight)
+    return np.concatenate(index), np.concatenate(weight), (rows, cols), s
+
+
+def _coarse_field(splat, moves, use=None):
+    """:func:`_displacement_field` on its grid (see :func:`_on_coarse_grid`): ``(rows,
+    cols, 2) float32`` from the :func:`_splat` of the points and their ``moves (P, 2)``;
+    ``use (P,)`` bool: only those points (None: all)."""
+    index, weight, (rows, cols), s = splat
+    if use is not None:
+        weight = weight * np.tile(use, 4)
     acc = np.stack([np.bincount(index, values, minlength=rows * cols) for values in (
         np.tile(moves[:, 0], 4) * weight, np.tile(moves[:, 1], 4) * weight, weight)])
     acc = acc.astype(np.float32)
@@ -770,14 +781,14 @@ def _coarse_field(points, moves, size, s):
     return np.ascontiguousarray(acc[..., :2] / np.maximum(acc[..., 2:], 1e-6))
 
 
-def _neighbour_moves(points, moves, trusted, size, step):
+def _neighbour_moves(splat, points, moves, trusted):
     """``(P, 2)``: the smooth displacement field of the ``trusted (P,)`` tracks' ``moves
-    (P, 2)`` at ``points (P, 2)`` (box pixels of a box of ``size (h, w)``); where fewer
+    (P, 2)`` at ``points (P, 2)`` (box pixels; ``splat`` their :func:`_splat`); where fewer
     than 4 tracks are trusted, the moves themselves."""
     if trusted.sum() < 4:
         return moves
-    coarse = _coarse_field(points[trusted], moves[trusted].astype(np.float32), size, int(step))
-    return sample(coarse, _on_coarse_grid(points, int(step))).astype(np.float64)
+    coarse = _coarse_field(splat, moves.astype(np.float32), trusted)
+    return sample(coarse, _on_coarse_grid(points, splat[3])).astype(np.float64)
 
 
 def _smoothed(image):
