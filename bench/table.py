@@ -274,7 +274,7 @@ def camera_pipeline_table(doc):
         lines.append(f"| {key} | {run['size'][1]} x {run['size'][0]} {run['encoding']} | "
                      f"{run.get('dds_profile', 'Fast DDS defaults')} | {run['points_back']} / "
                      f"{run['sent']} | {fmt(lat.get('p50'), 0)} / {fmt(lat.get('p95'), 0)} | "
-                     f"{fmt(load, 1)} |")
+                     f'{fmt(load, 1)} |')
     return lines
 
 
@@ -311,6 +311,16 @@ def sheets_table(doc):
     return lines
 
 
+def track_streams_table(doc):
+    lines = ['| sequence | window track share | context share | refined e3D | coverage | CPU s |',
+             '|---|---|---|---|---|---|']
+    for r in doc['rows']:
+        lines.append(f"| {r['sequence']} {doc['F']} x {doc['P']} | {r['share']} | "
+                     f"{r['context']} | {fmt(r['e3d'])} | {fmt(r['coverage'], 3)} | "
+                     f"{fmt(r['cpu_seconds'], 0)} |")
+    return lines
+
+
 #: (suite, heading, what the table shows, the table's lines from the suite's JSON)
 SECTIONS = (('accuracy', 'Accuracy', 'e3D; "A": Akhter\'s metric, the one of the published mocap '
              'numbers; PTA K chosen against ground truth', accuracy_table),
@@ -335,7 +345,11 @@ SECTIONS = (('accuracy', 'Accuracy', 'e3D; "A": Akhter\'s metric, the one of the
             ('perspective', 'Perspective', 'The projective-depth iteration; e3D with a '
              'per-frame scale (`python -m bench.perspective`)', perspective_table),
             ('sheets', 'Sheets', 'e3D and its ratio to rigid factorisation per option '
-             '(`python -m bench.sheets`)', sheets_table))
+             '(`python -m bench.sheets`)', sheets_table),
+            ('track_streams', 'Live windows on tracks that die and are born', 'The live '
+             "pipeline's `points/refined` against the truth of the entries it publishes; "
+             'coverage: their share of the tracked entries; record 0432 '
+             '(`python -m bench.track_streams`)', track_streams_table))
 
 
 def plot_links(doc, results, page_dir):

@@ -7,8 +7,10 @@ model, with the depths the tracking already published, which travel in the frame
 penalty schedule of a resumed window (passed to the solver per call, 0408, 0425) and the
 tracks a window is solved on (``mapping_tracks``, 0403). Pure Python and numpy: no ROS.
 
-Shapes: a window's problem is ``W: (2F, P)`` pixels over ``F = n_context + n_frames`` frames;
-an :class:`Update` carries :class:`FrameResult` s (``xyz: (P, 3)`` in the camera frame: the
+Shapes: a window's problem is ``W: (2F, P)`` pixels over ``F = n_context + n_frames`` frames,
+NaN where a frame does not see a track (the solver fills those; the starts read ``W``
+completed, and each frame's results hold the tracks it sees); an :class:`Update` carries
+:class:`FrameResult` s (``xyz: (P, 3)`` in the camera frame: the
 frame's centred u, v and the depth, in pixels) and a
 :class:`~grass_nrsfm_ros.nrsfm.tracking.ShapeModel` for the tracking.
 """
@@ -23,6 +25,7 @@ from grass_nrsfm_ros import params
 from grass_nrsfm_ros.nrsfm import GrassmannNRSfM, WarmStart
 from grass_nrsfm_ros.nrsfm.density import fill_dropped
 from grass_nrsfm_ros.nrsfm.measurement import as_frames, centre
+from grass_nrsfm_ros.nrsfm.missing import complete
 from grass_nrsfm_ros.nrsfm.rotation import (choose_rank, DEFAULT_CANDIDATES, max_rank,
                                             normalised_svd, rigid_factorisation,
                                             rotations_from_start)
@@ -32,8 +35,10 @@ from grass_nrsfm_ros.windowing import common_ids, window_matrix
 
 #: fewest tracks a window may be solved on when ``mapping_tracks`` caps them
 MIN_MAPPING_TRACKS = 100
-#: a context frame joins a solve only while the tracks common to it, the newer context frames
-#: and the window stay at least this share of the window's tracks
+#: a sequence's first window (started from the rigid factorisation) is solved on at most this
+#: many tracks, the rest filled in: the first model comes sooner (docs/decisions/0433)
+FIRST_WINDOW_TRACKS = 1000
+#: a context frame joins a solve only while it sees at least this share of the window's tracks
 CONTEXT_TRACKS = 0.9
 #: warm_start 'model': the rotation method chosen by the solver's check on a problem with full
 #: context is carried until the frames new since that check reach this share of its frames
@@ -61,7 +66,8 @@ class FrameResult:
 @dataclass(frozen=True)
 class WindowProblem:
     """What one solve reconstructs: ``W: (2F, P)`` of tracks ``ids: (P,)`` over ``stamps: (F,)``
-    = ``n_context`` context frames then the window's frames (``frame_ids: (F,)``)."""
+    = ``n_context`` context frames then the window's frames (``frame_ids: (F,)``); NaN where a
+    frame does not see a track (``seen: (F, P)`` False), ``filled: (2F, P)`` W completed."""
 
     sequence: int
     stamps: np.ndarray
@@ -69,6 +75,8 @@ class WindowProblem:
     W: np.ndarray
     n_context: int
     frame_ids: tuple = ()
+    filled: np.ndarray = None
+    seen: np.ndarray = None
 
 
 @dataclass
@@ -184,10 +192,10 @@ class Mapper:
         if self._releases(window):
             return Update.of(window, 'released')
         with one_blas_thread():
-            problem, S, Z, flipped = self._solve(window, progress)
+            problem, S, Z, flipped, seen = self._solve(window, progress)
             model = build_model(self.previous.S, self.previous.R, self.previous.ids,
                                 self.previous.stamps)
-        results = self._results(problem, S, Z)
+        results = self._results(problem, S, Z, seen)
         return Update.of(window, 'solved', results=results, flipped=flipped, model=model,
                          figures=self._figures(time.monotonic() - started))
 
@@ -198,9 +206,10 @@ class Mapper:
                               f'{window.ids.size} tracks (< min_tracks={self.min_tracks})')
         published = self._published_depths(window)
         problem = self._problem(window)
-        Wc, _ = centre(problem.W)
+        filled, seen = problem.filled, problem.seen
+        Wc, _ = centre(filled)
         init = self._start_for(problem)
-        keep = self._mapped_tracks(problem.ids)
+        keep = self._mapped_tracks(problem.ids, first=self.started_from == 'rigid')
         solver = self.solver_factory()
         result = solver.fit(problem.W if keep is None else problem.W[:, keep],
                             **self._fit_kwargs(solver, problem, init, keep, progress))
@@ -212,7 +221,7 @@ class Mapper:
         groups = getattr(result, 'groups', None)
         if keep is not None:
             labels = np.zeros(keep.size, dtype=int) if groups is None else groups
-            S, groups = fill_dropped(S, labels, problem.W, keep)
+            S, groups = fill_dropped(S, labels, filled, keep)
         Z = as_frames(S, 3)[:, 2, :]
         Z -= Z.mean(axis=1, keepdims=True)
         if self._depth_disagrees(problem, Z):
@@ -224,9 +233,10 @@ class Mapper:
             self._rotation_check = (problem.sequence, report.rotation_method, problem.stamps) \
                 if full else None
         F = len(problem.stamps)
-        uv = problem.W.reshape(F, 2, -1).transpose(0, 2, 1)
-        residual = float(np.linalg.norm(as_frames(Wc, 2) - as_frames(S, 3)[:, :2, :])
-                         / max(np.linalg.norm(Wc), 1e-300))
+        uv = filled.reshape(F, 2, -1).transpose(0, 2, 1)
+        error = (as_frames(Wc, 2) - as_frames(S, 3)[:, :2, :]) * seen[:, None, :]
+        residual = float(np.linalg.norm(error) / max(np.linalg.norm(Wc * np.repeat(seen, 2, 0)),
+                                                     1e-300))
         self.previous = Solution(window.sequence, problem.stamps, problem.ids, uv, S, R,
                                  groups, report, residual, self._rank_of(report, init))
         flipped = bool(published) and disagrees_with(self.previous, published)
@@ -234,7 +244,7 @@ class Mapper:
             p = self.previous
             p.S, p.R = flip_depth(p.S), DEPTH_FLIP @ p.R @ DEPTH_FLIP
             Z = -Z
-        return problem, as_frames(Wc, 2), Z, flipped
+        return problem, as_frames(Wc, 2), Z, flipped, seen
 
     def _fit_kwargs(self, solver, problem, init, keep, progress):
         """The keywords of this solve's ``fit``: the start, the progress callback and, for a
@@ -248,9 +258,9 @@ class Mapper:
             kwargs['beta_max'] = min(solver.get_params()['beta_max'], RESUMED_BETA_MAX)
         return kwargs
 
-    def _results(self, problem, XY, Z):
+    def _results(self, problem, XY, Z, seen):
         """FrameResults of the frames of ``problem`` solved at most ``refined_after`` times
-        (this solve counted)."""
+        (this solve counted), each on the tracks it sees (``seen: (F, P)``)."""
         if self._solves[0] != problem.sequence:
             self._solves = (problem.sequence, {})
         solves = self._solves[1]
@@ -258,10 +268,11 @@ class Mapper:
         for i, stamp in enumerate(int(s) for s in problem.stamps):
             solves[stamp] = solves.get(stamp, 0) + 1
             if solves[stamp] <= self.refined_after:
-                xyz = np.empty((problem.ids.size, 3))
-                xyz[:, :2] = XY[i].T
-                xyz[:, 2] = Z[i]
-                out.append(FrameResult(stamp, problem.frame_ids[i], problem.ids, xyz))
+                xyz = np.column_stack([XY[i].T, Z[i]])
+                ids = problem.ids
+                if not seen[i].all():
+                    ids, xyz = ids[seen[i]], xyz[seen[i]]
+                out.append(FrameResult(stamp, problem.frame_ids[i], ids, xyz))
         return tuple(out)
 
     def _figures(self, seconds):
@@ -288,29 +299,35 @@ class Mapper:
                 if f.depth is not None}
 
     def _problem(self, window):
-        """What ``window`` is solved as: its context frames (newest first dropped last) then its
-        own frames, on the tracks common to all of them. Context frames are dropped, oldest
-        first, while the common tracks are fewer than ``CONTEXT_TRACKS`` of the window's."""
+        """What ``window`` is solved as: its context frames then its own frames, on the
+        window's tracks. The context is its newest frames that each see at least
+        ``CONTEXT_TRACKS`` of the window's tracks that its first frame sees (tracks born
+        later are no reason to drop one; the first that sees fewer ends it)."""
         context, ids, kept = window.context, window.ids, 0
+        old = common_ids(ids, window.frames[0].ids)
         for frame in reversed(context):
-            common = common_ids(ids, frame.ids)
-            if common.size < max(self.min_tracks, CONTEXT_TRACKS * window.ids.size):
+            if common_ids(old, frame.ids).size < max(self.min_tracks,
+                                                     CONTEXT_TRACKS * old.size):
                 break
-            ids, kept = common, kept + 1
+            kept += 1
         context = context[len(context) - kept:] if kept else ()
         frames = context + window.frames
         stamps = np.array([f.stamp_ns for f in frames], dtype=np.int64)
         W = window_matrix(frames, ids)
         return WindowProblem(window.sequence, stamps, ids, W, len(context),
-                             tuple(f.frame_id for f in frames))
+                             tuple(f.frame_id for f in frames), *completed(W))
 
-    def _mapped_tracks(self, ids):
-        """Indices ``(mapping_tracks,)`` (sorted) of the tracks ``ids: (P,)`` the solver sees,
-        or None for all; the same ids are picked in every window (a fixed hash of the id)."""
-        if not self.mapping_tracks or ids.size <= self.mapping_tracks:
+    def _mapped_tracks(self, ids, first=False):
+        """Indices (sorted) of the tracks ``ids: (P,)`` the solver sees, at most
+        ``mapping_tracks`` (FIRST_WINDOW_TRACKS for the ``first`` window of a sequence), or None
+        for all; the same ids are picked in every window (a fixed hash of the id)."""
+        cap = self.mapping_tracks or ids.size
+        if first:
+            cap = min(cap, FIRST_WINDOW_TRACKS)
+        if ids.size <= cap:
             return None
         key = (ids.astype(np.uint64) * np.uint64(2654435761)) % np.uint64(1 << 32)
-        return np.sort(np.argsort(key, kind='stable')[:self.mapping_tracks])
+        return np.sort(np.argsort(key, kind='stable')[:cap])
 
     # -- warm start -----------------------------------------------------------------------------
     def _overlap(self, problem):
@@ -350,7 +367,7 @@ class Mapper:
             return self._resume_start(problem, ov)
         if not problem.n_context:
             self.started_from = 'rigid'
-            return rigid_start(problem.W)
+            return rigid_start(problem.filled)
         self.started_from = 'model'
         groups = None
         if ov is not None and self.previous.groups is not None:
@@ -366,8 +383,8 @@ class Mapper:
         (:meth:`_carried_start`), rotations by Dai's method refined from the previous ones
         (:func:`resume_rotations`), solved as a cold solve from them (``resumed``)."""
         start = self._carried_start(problem, ov)
-        R, self._resumed_rank = resume_rotations(problem.W, np.asarray(start.R), start.known,
-                                                 self.previous.K_rot)
+        R, self._resumed_rank = resume_rotations(problem.filled, np.asarray(start.R),
+                                                 start.known, self.previous.K_rot)
         return replace(start, R=R, known=np.ones(start.known.size, dtype=bool), resumed=True)
 
     def _carried_start(self, problem, ov):
@@ -383,7 +400,7 @@ class Mapper:
         Z = as_frames(p.S, 3)[:, 2, :][source][:, donor]
         Z -= Z.mean(axis=1, keepdims=True)
         S = np.empty((F, 3, P))
-        S[:, :2, :] = as_frames(centre(problem.W)[0], 2)
+        S[:, :2, :] = as_frames(centre(problem.filled)[0], 2)
         S[:, 2, :] = Z
         known = np.zeros(F, dtype=bool)
         known[fn] = True
@@ -402,7 +419,7 @@ class Mapper:
         missing = donor < 0
         if missing.any():
             tree = cKDTree(p.uv[fo[0]][to])
-            new_uv = problem.W.reshape(F, 2, P)[fn[0]].T[missing]     # pixels, same frame
+            new_uv = problem.filled.reshape(F, 2, P)[fn[0]].T[missing]     # pixels, same frame
             donor[missing] = to[tree.query(new_uv)[1]]
         return donor
 
@@ -427,6 +444,17 @@ class Mapper:
         if method == 'rigid':
             return 1
         return self._resumed_rank if method == 'given' and init is not None else None
+
+
+def completed(W):
+    """``(W_filled: (2F, P), seen: (F, P) bool)``: ``W`` with its NaN entries (tracks a frame
+    does not see) filled by the low-rank completion the solver uses; ``W`` itself when
+    complete."""
+    F = W.shape[0] // 2
+    seen = np.isfinite(W).reshape(F, 2, -1).all(axis=1)
+    if seen.all():
+        return W, seen
+    return complete(np.where(np.repeat(seen, 2, axis=0), W, 0.0), seen)[0], seen
 
 
 def rigid_start(W):

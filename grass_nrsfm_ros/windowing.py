@@ -4,7 +4,7 @@ It owns validation of a frame, sequences (a change of almost all track ids start
 buffer ordered by stamp, windows, context and key frames. Pure Python and numpy: no ROS.
 
 Shapes: a :class:`Frame` holds ``ids: (P,) uint32`` (sorted) and ``uv: (P, 2)`` pixels; a
-:class:`Window` holds its own Frames, the ``ids: (P,)`` common to all of them, its ``context``
+:class:`Window` holds its own Frames, the ``ids: (P,)`` it is solved on, its ``context``
 Frames and, as a property, ``W: (2F, P)``.
 
 Policies:
@@ -14,10 +14,12 @@ Policies:
   window is refused as late (:class:`FrameError`), a second frame with a buffered stamp as a
   duplicate.
 * **Windows.** Every ``window_stride`` frames (the first time after ``window_size``) a Window of
-  the newest ``window_size`` buffered frames closes, on the tracks common to all of them. It
-  also carries up to ``context_frames`` earlier frames and ``key_frames`` older ones spread
-  evenly over the sequence (docs/decisions/0035, 0036). ``push(frame, close_early=True)``
-  closes the next window as soon as more than ``window_size - window_stride`` frames wait.
+  the newest ``window_size`` buffered frames closes. It also carries up to ``context_frames``
+  earlier frames and ``key_frames`` older ones spread evenly over the sequence
+  (docs/decisions/0035, 0036). ``push(frame, close_early=True)`` closes the next window as soon
+  as more than ``window_size - window_stride`` frames wait.
+* **Tracks.** A window is solved on the tracks seen in WINDOW_TRACK_SHARE of its own frames;
+  where a frame does not see one, its W holds NaN (docs/decisions/0432).
 * **All ids change** (a new tracker session): a frame sharing fewer than ``min_tracks`` ids
   with the newest buffered frame starts a new *sequence*. The old buffer's frames that were in
   no window go out in one last window (``final``), and no state crosses the boundary.
@@ -35,6 +37,11 @@ import numpy as np
 from grass_nrsfm_ros import params
 from grass_nrsfm_ros.cloud import strictly_increasing
 from grass_nrsfm_ros.params import MIN_WINDOW_FRAMES
+
+
+#: a window is solved on the tracks seen in at least this share of its own frames
+#: (docs/decisions/0432); the others' entries are NaN in its W
+WINDOW_TRACK_SHARE = 0.8
 
 
 class FrameError(ValueError):
@@ -57,8 +64,9 @@ class Frame:
 
 @dataclass(frozen=True)
 class Window:
-    """A closed window: its own ``frames`` (ascending stamps) on the ``ids: (P,)`` common to
-    them; ``context``: earlier Frames of its sequence solved with it (oldest first: key frames,
+    """A closed window: its own ``frames`` (ascending stamps) on the ``ids: (P,)`` seen in
+    WINDOW_TRACK_SHARE of them; ``context``: earlier Frames of its sequence solved with it
+    (oldest first: key frames,
     then the newest ``context_frames``); ``closed_at``: ``time.monotonic()`` when it closed;
     ``fresh``: stamps of its frames in no earlier window; ``final``: the last window of its
     sequence."""
@@ -87,7 +95,7 @@ class Window:
 
     @property
     def W(self):
-        """``(2F, P)`` pixels of the common tracks over the window's own frames."""
+        """``(2F, P)`` pixels of its tracks over the window's own frames, NaN where not seen."""
         return window_matrix(self.frames, self.ids)
 
 
@@ -114,10 +122,29 @@ def common_ids(a, b):
 
 
 def window_matrix(frames, ids):
-    """``W: (2F, P)`` pixels of the tracks ``ids: (P,)`` (in every one of ``frames``)."""
-    uv = np.stack([f.uv if f.ids.size == ids.size else
-                   f.uv[np.searchsorted(f.ids, ids)] for f in frames])    # (F, P, 2)
-    return uv.transpose(0, 2, 1).reshape(2 * len(frames), ids.size)
+    """``W: (2F, P)`` pixels of the tracks ``ids: (P,)`` (sorted) over ``frames``; NaN where a
+    frame does not have a track."""
+    return np.stack([frame_uv(f, ids) for f in frames]).transpose(0, 2, 1).reshape(
+        2 * len(frames), ids.size)
+
+
+def frame_uv(frame, ids):
+    """``(P, 2)`` pixels of the tracks ``ids: (P,)`` (sorted) in ``frame``, NaN where it does not
+    have them."""
+    if frame.ids.size == ids.size and np.array_equal(frame.ids, ids):
+        return frame.uv
+    at = np.minimum(np.searchsorted(frame.ids, ids), frame.ids.size - 1)
+    return np.where((frame.ids[at] == ids)[:, None], frame.uv[at], np.nan)
+
+
+def tracks_seen(frames, share):
+    """The sorted ids seen in at least ``share`` of ``frames`` (and in two of them): all their
+    ids when the frames share one id set."""
+    first = frames[0].ids
+    if all(np.array_equal(f.ids, first) for f in frames[1:]):
+        return first
+    ids, counts = np.unique(np.concatenate([f.ids for f in frames]), return_counts=True)
+    return ids[counts >= max(2, int(np.ceil(share * len(frames) - 1e-9)))]
 
 
 class Windowing:
@@ -249,9 +276,7 @@ class Windowing:
             raise FrameError(f'duplicate stamp {stamp_ns} (the first frame is kept)')
 
     def _emit(self, frames, final=False):
-        common = frames[0].ids
-        for f in frames[1:]:
-            common = common_ids(common, f.ids)
+        common = tracks_seen(frames, WINDOW_TRACK_SHARE)
         fresh = tuple(f.stamp_ns for f in self._fresh(frames))
         self._emitted_until = int(frames[-1].stamp_ns)
         first = frames[0].stamp_ns

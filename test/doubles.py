@@ -19,6 +19,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from grass_nrsfm_ros.mapper import completed
 from grass_nrsfm_ros.nrsfm import GrassmannNRSfM
 from grass_nrsfm_ros.nrsfm.measurement import as_frames, centre
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
@@ -140,14 +141,15 @@ class RigidALS:
     ``init.R`` on the ``init.known`` frames, all when ``known`` is None, as a resumed
     WarmStart gives them), then alternate shape (least squares) and cameras (a
     majorise-minimise step on the orthonormal-rows constraint) until the relative change of
-    the residual is below ``tol``."""
+    the residual is below ``tol``. NaN entries of W (tracks a frame does not see) are filled
+    by the package's completion first."""
 
     def __init__(self, tol=1e-7, max_iterations=500):
         self.tol, self.max_iterations = tol, max_iterations
 
     def fit(self, W, init=None):
         start = time.process_time()
-        Wc, t = centre(W)
+        Wc, t = centre(completed(W)[0])
         cams, X = tomasi_kanade(Wc)
         known = None if init is None or init.R is None else (
             np.ones(len(init.R), dtype=bool) if init.known is None else np.asarray(init.known))

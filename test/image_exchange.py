@@ -15,9 +15,12 @@ BEST_EFFORT = QoSProfile(depth=64, reliability=ReliabilityPolicy.BEST_EFFORT)
 
 def receive(node, n):
     received, first = [], []
-    node.create_subscription(Image, 'image', lambda msg: (received.append(msg.header.stamp.sec),
-                                                           first or first.append(time.time())),
-                             BEST_EFFORT)
+
+    def on_image(msg):
+        received.append(msg.header.stamp.sec)
+        if not first:
+            first.append(time.time())
+    node.create_subscription(Image, 'image', on_image, BEST_EFFORT)
     print('ready', flush=True)
     while len(received) < n and (not first or time.time() - first[0] < 20):
         rclpy.spin_once(node, timeout_sec=0.1)

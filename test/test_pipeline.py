@@ -79,10 +79,14 @@ def test_depth_sign_aligned_across_windows(warm_start):
 
 
 def test_tracks_come_and_go():
+    """A window is solved on the tracks seen in 80 % of its frames (windowing
+    WINDOW_TRACK_SHARE); each frame's results hold the tracks it sees; a track born mid-stream
+    gets a solved depth from the next window, not its neighbours' (they lie on other parts of
+    the sheet). The shipped solver: its data term leaves out what a frame does not see."""
     W, S, ids = bending_sheet(F=60, P=120)
     late = ids[:20]                        # appear from frame 25 on
     gone = ids[20:40]                      # vanish after frame 44
-    p = pipeline()
+    p = make_pipeline({'refined_from': 'first_window'})
     refined = []
     for f, (all_ids, uv) in enumerate(frames_of(W, ids)):
         keep = np.ones(ids.size, bool)
@@ -94,13 +98,23 @@ def test_tracks_come_and_go():
         refined += p.refined()[0]
     p.flush()
     refined += p.refined()[0]
-    first = refined[0].ids
-    assert not np.isin(late, first).any() and np.isin(gone, first).all()
-    # window 3 (frames 20..49) lacks both; window 4 (frames 30..59) has the late ones
     by_stamp = {r.stamp_ns: r for r in refined}
-    assert not np.isin(late, by_stamp[45].ids).any() and not np.isin(gone, by_stamp[45].ids).any()
-    assert np.isin(late, by_stamp[55].ids).all()
     assert sorted(by_stamp) == list(range(60))
+    # window 0 (frames 0..29) sees the late ones in 5 frames: not solved; the gone ones in all
+    assert not np.isin(late, by_stamp[0].ids).any() and np.isin(gone, by_stamp[0].ids).all()
+    # window 2 (frames 20..49, published first for 40..49) sees both in 25 of its 30 frames:
+    # solved on both; frame 45 sees the late ones, not the gone ones
+    assert np.isin(late, by_stamp[45].ids).all() and not np.isin(gone, by_stamp[45].ids).any()
+    order = np.argsort(ids)
+    for stamp in (45, 55):
+        r = by_stamp[stamp]
+        truth = S[3 * stamp + 2][order][np.searchsorted(ids[order], r.ids)]
+        z = r.xyz[:, 2] * np.sign(np.dot(r.xyz[:, 2], truth - truth.mean()))
+        error = np.abs(z - (truth - truth.mean()))
+        is_late = np.isin(r.ids, late)
+        # measured (frames 45 / 55, median px; depth spread 51 / 35 px): late 7.66 / 1.89,
+        # others 6.84 / 2.71; the late ones with their nearest neighbour's depth 9.87 / 5.60
+        assert np.median(error[is_late]) < 1.2 * np.median(error[~is_late]) + 0.2
 
 
 def test_out_of_order_duplicate_and_late_frames():
