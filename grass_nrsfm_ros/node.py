@@ -6,7 +6,7 @@ them) in; ``points`` (every frame, tracked on arrival), ``points/refined`` (each
 from the windows behind), ``/diagnostics`` and, with ``publish_mesh``, ``mesh`` (Marker
 TRIANGLE_LIST) out; service ``~/reset``. With intrinsics the points are the camera frame through
 the pinhole (:mod:`grass_nrsfm_ros.pipeline`); while a camera_info publisher is there but none
-has arrived, tracks are dropped (counted).
+has arrived, tracks are dropped (counted), for at most CAMERA_INFO_WAIT_S of stamps.
 
 Threads: a SingleThreadedExecutor runs the input callback (each frame tracked and published at
 once) and the housekeeping (docs/decisions/0039); with ``mapping: process`` the windows are
@@ -51,6 +51,7 @@ POINTCLOUD2 = 'sensor_msgs/msg/PointCloud2'
 LOG_PERIOD_S = 10.0          # the same problem is logged at most once per period
 ACK_TIMEOUT_S = 2.0          # longest wait for subscribers to take a burst of clouds
 GIL_SWITCH_S = 0.0005        # the mapping's threads yield the GIL this often (record 0400)
+CAMERA_INFO_WAIT_S = 1.0     # tracks wait at most this long (stamps) for a silent camera_info
 LEVELS = {'ok': DiagnosticStatus.OK, 'warn': DiagnosticStatus.WARN}
 
 
@@ -71,6 +72,7 @@ class ReconstructionNode(Node):
         self.pipeline.orthographic_warning = lambda: self.get_logger().warning(
             ORTHOGRAPHIC_MESSAGE, once=True)
         self.camera_fixed = bool(config['camera'])      # the parameter wins over camera_info
+        self.camera_wait_from = None                    # stamp of the first tracks that waited
         self.counts = dict(messages=0, dropped_messages=0, dropped_windows=0, resets=0)
         self.last_solve, self.last_reset, self.last_frame_at = {}, '', None
         self.latencies = deque(maxlen=LATENCY_WINDOW)      # tracks received -> points sent
@@ -116,7 +118,7 @@ class ReconstructionNode(Node):
         except Exception as exc:                      # malformed CDR or cloud: drop, go on
             return self._drop(f'bad tracks message ({type(exc).__name__}: {exc})')
         stamp = stamp_ns(msg.header.stamp)
-        if self.pipeline.camera is None and self.info_sub.get_publisher_count():
+        if self._waits_for_camera_info(stamp):
             return self._drop(f'tracks at {stamp} ns before the first camera_info from '
                               f'{self.info_sub.topic_name}')
         if tracks.ids.size == 0:
@@ -138,6 +140,16 @@ class ReconstructionNode(Node):
         self.latencies.append(time.monotonic() - received)
         if self.inline:
             self._publish_refined()
+
+    def _waits_for_camera_info(self, stamp):
+        """True while tracks are dropped for want of intrinsics: a camera_info publisher is
+        there, none has arrived, and the first tracks that waited are less than
+        CAMERA_INFO_WAIT_S older than ``stamp`` (then pixels as they are, said once)."""
+        if self.pipeline.camera is not None or not self.info_sub.get_publisher_count():
+            return False
+        if self.camera_wait_from is None:
+            self.camera_wait_from = stamp
+        return stamp - self.camera_wait_from < CAMERA_INFO_WAIT_S * 1e9
 
     def _on_camera_info(self, msg):
         """Intrinsics of the tracks: a change starts a new sequence (the normalised points

@@ -257,3 +257,37 @@ def test_node_takes_k_from_its_camera_parameter(ros_env, tmp_path, pinhole):
         publish(feeder, [tracks for _, tracks in node_frames(pinhole, 25)])
         through_the_pinhole(feeder, pinhole, 25)
     assert 'no camera intrinsics' not in log.read_text()
+
+
+@pytest.mark.ros
+def test_a_silent_camera_info_publisher_holds_tracks_back_one_second(ros_env, tmp_path,
+                                                                      pinhole):
+    """A camera_info publisher that never publishes: the tracks of the first second (stamps)
+    are dropped, said once; then they go out as pixels (orthographic, said once)."""
+    pytest.importorskip('rclpy')
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import CameraInfo
+    from rosutil import node_with_feeder, publish
+    from grass_nrsfm_ros import node
+    log = tmp_path / 'node.log'
+    frames = node_frames(pinhole, 15)
+    for f, (header, tracks) in enumerate(frames):       # 0.1 s apart: frames 10..14 after 1 s
+        stamp = 10 ** 18 + f * 100_000_000
+        header.stamp.sec, header.stamp.nanosec = divmod(stamp, 10 ** 9)
+        tracks.header.stamp = header.stamp
+    with node_with_feeder(ros_env, log, ['-p', 'window_size:=20', '-p', 'window_stride:=10'],
+                          points_depth=30) as (proc, feeder):
+        info_pub = feeder.node.create_publisher(CameraInfo, 'camera_info',
+                                                qos_profile_sensor_data)
+        assert feeder.wait_for(lambda: info_pub.get_subscription_count() > 0, 20)
+        publish(feeder, [tracks for _, tracks in frames])
+        assert feeder.wait_for(lambda: len(feeder.points) >= 5, 60), log.read_text()
+        assert feeder.wait_for(
+            lambda: int(feeder.diagnostic_values().get('dropped messages', -1)) == 10, 30)
+    assert node.CAMERA_INFO_WAIT_S == 1.0
+    stamps = sorted(m.header.stamp.sec * 10 ** 9 + m.header.stamp.nanosec
+                    for m in feeder.points)
+    assert stamps == [10 ** 18 + f * 100_000_000 for f in range(10, 15)]
+    text = log.read_text()
+    assert text.count('before the first camera_info') == 1
+    assert text.count('no camera intrinsics (K)') == 1

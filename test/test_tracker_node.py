@@ -334,6 +334,7 @@ def test_two_namespaced_pipelines_keep_their_streams_apart(ros_env, tmp_path):
             procs.append((start(ros_env, tmp_path / f'node_{key}.log', ns,
                                 ['-p', 'context_frames:=0'], launch=RIGID_LAUNCH), key))
             cameras[key] = Camera(ns, context=context)
+            cameras[key].info = camera_info()      # the node waits for it (up to 1 s)
         for camera in cameras.values():
             assert camera.wait_for(lambda c=camera: c.connected(reconstruction=True), 90), (
                 camera.values(), camera.values('grass_nrsfm'),
