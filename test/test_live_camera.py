@@ -260,8 +260,8 @@ def test_node_takes_k_from_its_camera_parameter(ros_env, tmp_path, pinhole):
 
 
 @pytest.mark.ros
-def test_a_silent_camera_info_publisher_holds_tracks_back_one_second(ros_env, tmp_path,
-                                                                      pinhole):
+def test_a_silent_camera_info_publisher_holds_tracks_back_one_second(
+        ros_env, tmp_path, pinhole):
     """A camera_info publisher that never publishes: the tracks of the first second (stamps)
     are dropped, said once; then they go out as pixels (orthographic, said once)."""
     pytest.importorskip('rclpy')
