@@ -321,6 +321,32 @@ def track_streams_table(doc):
     return lines
 
 
+def missing_table(doc):
+    lines = ['| case | sequence | F x P | unseen | e3D | against | ratio (bar) |',
+             '|---|---|---|---|---|---|---|']
+    for r in doc['rows']:
+        size = f"{r['F']} x {r['P']}"
+        if r['case'] == 'back':
+            lines.append(f"| real back, all tracks | {r['sequence']} | {size} | "
+                         f"{fmt(r['unseen'], 3)} | {fmt(r['ours_all'])} over seen entries | "
+                         f"rigid on the complete 126: {fmt(r['rigid_complete'])} (ours on them "
+                         f"{fmt(r['ours_complete'])}) | {fmt(r['ratio'], 3)} ({r['bar']}); "
+                         'rotations from all tracks completed '
+                         f"{fmt(r['ratio_rotations_completed'], 3)} |")
+        elif r['case'] == 'occlusion':
+            lines.append(f"| occlusion blocks | {r['sequence']} s{r['seed']} | {size} | "
+                         f"{fmt(r['unseen'], 3)} | {fmt(r['masked'])} (seen "
+                         f"{fmt(r['masked_seen'])}) | complete: {fmt(r['complete'])} | "
+                         f"{fmt(r['ratio'], 3)} ({r['bar']}) |")
+        else:
+            lines.append(f"| 5 % drifting 20 px | {r['sequence']} s{r['seed']} | {size} | - | "
+                         f"{fmt(r['never'])}; robust 'cauchy' {fmt(r['cauchy'])} (found "
+                         f"{r['found']}/{r['drifting']}, clean touched {r['clean_touched']}) | "
+                         f"clean: {fmt(r['clean'])} | {fmt(r['ratio_never'], 3)}; cauchy "
+                         f"{fmt(r['ratio_cauchy'], 3)} ({r['bar']}) |")
+    return lines
+
+
 #: (suite, heading, what the table shows, the table's lines from the suite's JSON)
 SECTIONS = (('accuracy', 'Accuracy', 'e3D; "A": Akhter\'s metric, the one of the published mocap '
              'numbers; PTA K chosen against ground truth', accuracy_table),
@@ -344,6 +370,9 @@ SECTIONS = (('accuracy', 'Accuracy', 'e3D; "A": Akhter\'s metric, the one of the
              kinect_paper_table),
             ('perspective', 'Perspective', 'The projective-depth iteration; e3D with a '
              'per-frame scale (`python -m bench.perspective`)', perspective_table),
+            ('missing', 'Missing data and tracker errors', 'Unseen entries and drifting '
+             'tracks in the offline solver; record 0800, 0801 (`python -m bench.missing`)',
+             missing_table),
             ('sheets', 'Sheets', 'e3D and its ratio to rigid factorisation per option '
              '(`python -m bench.sheets`)', sheets_table),
             ('track_streams', 'Live windows on tracks that die and are born', 'The live '

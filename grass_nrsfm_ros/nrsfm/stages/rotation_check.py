@@ -49,7 +49,7 @@ def score(problem, R, params, report, solve_shapes, name):
 
 def run(problem, R, params, report, solve_shapes):
     """The checked rotations: ``R: (F, 3, 3)`` (Dai's) or the rigid factorisation's."""
-    R_rigid = rigid_factorisation(problem.Wn)[0]
+    R_rigid = rigid_factorisation(problem.Wn[:, rotations.core_tracks(problem)])[0]
     dai, rigid = (score(problem, cand, params, report, solve_shapes, name)
                   for cand, name in ((R, 'dai'), (R_rigid, 'rigid')))
     use_rigid = rigid < (1.0 - ROTATION_MARGIN) * dai

@@ -1,0 +1,168 @@
+"""Missing data and tracker errors in the offline solver (issue #38's targets, record 0800).
+
+* ``back``: the real back (``../shared/data/russell_back``, 150 x 245 pixel tracks, 4 % unseen,
+  stereo truth): all 245 tracks solved, e3D (per-frame scale) over the seen entries with a
+  truth (the two stereo outlier depths, z < 800, left out), over rigid factorisation of the
+  126 complete tracks (bar <= 0.8); also ours on the 126 alone, ours-all on those 126, and
+  ours-all with the rotations from every track completed instead of the complete core.
+* ``occlusion``: the package's synthetic kinds with 20 % of the entries unseen in
+  occlusion-like blocks (:func:`synthetic.occlusion_mask`), e3D over every entry (and over the
+  seen ones) against the same tracks complete (bar <= 1.15).
+* ``drift``: 5 % of the tracks drifting up to 20 px (:func:`synthetic.drifting_tracks`, 1 px =
+  the sequence's max |centred W| / 200), against the clean tracks (bar <= 1.2), with
+  ``robust`` 'never' (the default) and 'cauchy'; the drifting tracks found, clean ones touched.
+
+Synthetic: 60 frames x 400 tracks, orbiting camera, noise r = 0.005 (1 px), seeds 3 (and 4 in
+--full). ``python -m bench.missing [--smoke|--full]`` writes ``bench/results/missing.json``.
+"""
+import sys
+import time
+
+import numpy as np
+
+from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM, rigid_factorisation, synthetic
+from grass_nrsfm_ros.nrsfm.stages import rotations
+from . import common
+
+BARS = {'back': 0.8, 'occlusion': 1.15, 'drift': 1.2}
+NOISE = 0.005
+#: stereo outliers of the back's truth: depths below this are left out of its e3D
+BACK_MIN_DEPTH = 800.0
+
+
+def solve(W, **params):
+    """``(result, seconds)`` of a default solve with ``params``."""
+    start = time.perf_counter()
+    result = GrassmannNRSfM(**params).fit(W)
+    return result, time.perf_counter() - start
+
+
+def back_row():
+    root = common.data_root()
+    if root is None or not (root / 'russell_back' / 'back.npz').is_file():
+        return None
+    with np.load(root / 'russell_back' / 'back.npz') as z:
+        W, S, visible = z['W'].astype(float), z['S'].astype(float), z['visible']
+    F, P = visible.shape
+    depth = S.reshape(F, 3, P)[:, 2]
+    truth = visible & np.isfinite(S).reshape(F, 3, P).all(axis=1) & (depth > BACK_MIN_DEPTH)
+    core = visible.all(axis=0)
+    rigid = e3d(rigid_factorisation(W[:, core])[1], S[:, core], scale=True)
+    common.log('missing: back, 126 complete tracks')
+    alone, t_alone = solve(W[:, core])
+    common.log('missing: back, all 245 tracks')
+    ours, t_all = solve(W)
+    all_e3d = e3d(ours.S, S, scale=True, visible=truth)
+    common.log('missing: back, all 245 tracks, rotations from every track completed')
+    shipped, rotations.CORE_SHARE = rotations.CORE_SHARE, np.inf
+    try:
+        completed = e3d(solve(W)[0].S, S, scale=True, visible=truth)
+    finally:
+        rotations.CORE_SHARE = shipped
+    return {'case': 'back', 'sequence': 'russell_back', 'F': F, 'P': P,
+            'unseen': float(1 - visible.mean()), 'rigid_complete': rigid,
+            'ours_complete': e3d(alone.S, S[:, core], scale=True),
+            'ours_all_on_complete': e3d(ours.S[:, core], S[:, core], scale=True),
+            'ours_all': all_e3d, 'ratio': all_e3d / rigid, 'bar': BARS['back'],
+            'ours_all_rotations_completed': completed,
+            'ratio_rotations_completed': completed / rigid,
+            'seconds': t_all, 'seconds_complete': t_alone, 'completion': ours.report.completion,
+            'K_rot': ours.report.K_rot}
+
+
+def occlusion_row(kind, seed, F, P):
+    seq = synthetic.make_sequence(kind, n_frames=F, n_points=P, noise=NOISE, seed=seed)
+    visible = synthetic.occlusion_mask(seq.W, 0.2, np.random.default_rng(seed + 100))
+    W = np.where(np.repeat(visible, 2, axis=0), seq.W, np.nan)
+    common.log(f'missing: occlusion {kind} seed {seed}')
+    full, t_full = solve(seq.W)
+    masked, t_masked = solve(W)
+    complete_e3d, masked_e3d = e3d(full.S, seq.S), e3d(masked.S, seq.S)
+    return {'case': 'occlusion', 'sequence': kind, 'seed': seed, 'F': F, 'P': P,
+            'unseen': float(1 - visible.mean()), 'complete': complete_e3d, 'masked': masked_e3d,
+            'masked_seen': e3d(masked.S, seq.S, visible=visible),
+            'ratio': masked_e3d / complete_e3d, 'bar': BARS['occlusion'],
+            'seconds': t_masked, 'seconds_complete': t_full,
+            'completion': masked.report.completion}
+
+
+def drift_row(kind, seed, F, P):
+    seq = synthetic.make_sequence(kind, n_frames=F, n_points=P, noise=NOISE, seed=seed)
+    W, drifting = synthetic.drifting_tracks(seq.W, 0.05, 20.0, np.random.default_rng(seed + 200))
+    common.log(f'missing: drift {kind} seed {seed}')
+    clean = e3d(solve(seq.W)[0].S, seq.S)
+    row = {'case': 'drift', 'sequence': kind, 'seed': seed, 'F': F, 'P': P, 'clean': clean,
+           'bar': BARS['drift'], 'drifting': int(drifting.sum())}
+    for robust in ('never', 'cauchy'):
+        result, seconds = solve(W, robust=robust)
+        down = np.zeros(P, dtype=bool)
+        down[result.report.downweighted_tracks] = True
+        row[robust] = e3d(result.S, seq.S)
+        row[f'ratio_{robust}'] = row[robust] / clean
+        row[f'seconds_{robust}'] = seconds
+        if robust != 'never':
+            row['found'] = int((down & drifting).sum())
+            row['clean_touched'] = int((down & ~drifting).sum())
+            row['clean_tracks_robust'] = e3d(solve(seq.W, robust=robust)[0].S, seq.S) / clean
+    return row
+
+
+def summary(rows):
+    """Per case: the mean of the ratios and how many rows meet the bar."""
+    out = {}
+    for case, key in (('occlusion', 'ratio'), ('drift', 'ratio_never'), ('drift', 'ratio_cauchy'),
+                      ('back', 'ratio')):
+        values = [r[key] for r in rows if r['case'] == case]
+        if values:
+            out[f'{case} {key}'] = {'mean': float(np.mean(values)), 'max': float(np.max(values)),
+                                    'meet_bar': int(sum(v <= BARS[case] for v in values)),
+                                    'rows': len(values)}
+    return out
+
+
+def run(mode):
+    kinds = mode.pick(('bending',), synthetic.kinds(), synthetic.kinds())
+    seeds = mode.pick((3,), (3,), (3, 4))
+    F, P = mode.pick((30, 150), (60, 400), (60, 400))
+    rows = []
+    if mode.name != 'smoke':
+        back = back_row()
+        if back is not None:
+            rows.append(back)
+    rows += [occlusion_row(k, s, F, P) for k in kinds for s in seeds]
+    rows += [drift_row(k, s, F, P) for k in kinds for s in seeds]
+    payload = {'rows': rows, 'summary': summary(rows), 'bars': BARS, 'noise': NOISE}
+    path = common.write_result(mode, 'missing', payload)
+    common.log(f'wrote {path}')
+    for line in text(payload):
+        print(line)
+    return payload
+
+
+def text(payload):
+    """The figures as lines of text."""
+    out = []
+    for r in payload['rows']:
+        if r['case'] == 'back':
+            out.append(f"back {r['F']} x {r['P']}: all {r['ours_all']:.4f} / rigid(126) "
+                       f"{r['rigid_complete']:.4f} = {r['ratio']:.3f} (bar {r['bar']}); ours(126) "
+                       f"{r['ours_complete']:.4f}, all-on-126 {r['ours_all_on_complete']:.4f}; "
+                       f"rotations from all completed {r['ours_all_rotations_completed']:.4f} "
+                       f"({r['ratio_rotations_completed']:.3f})")
+        elif r['case'] == 'occlusion':
+            out.append(f"occlusion {r['sequence']} s{r['seed']}: {r['masked']:.4f} / "
+                       f"{r['complete']:.4f} = {r['ratio']:.3f} (seen {r['masked_seen']:.4f})")
+        else:
+            out.append(f"drift {r['sequence']} s{r['seed']}: never {r['ratio_never']:.3f}, "
+                       f"cauchy {r['ratio_cauchy']:.3f} (found {r['found']}/{r['drifting']}, "
+                       f"clean touched {r['clean_touched']}; clean+cauchy "
+                       f"{r['clean_tracks_robust']:.3f})")
+    for key, value in payload['summary'].items():
+        out.append(f"{key}: mean {value['mean']:.3f}, max {value['max']:.3f}, "
+                   f"{value['meet_bar']}/{value['rows']} within the bar")
+    return out
+
+
+if __name__ == '__main__':
+    name = 'smoke' if '--smoke' in sys.argv else 'full' if '--full' in sys.argv else 'quick'
+    run(common.Mode(name))
