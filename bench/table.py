@@ -133,7 +133,7 @@ def streaming_table(doc):
 def live_table(doc):
     lines = ['| sequence | F x P | points (all frames) | points / windows after 1st model | '
              "refined | windows | mapping CPU s / window (windows') | from the 3rd window | "
-             'tracking ms p95 |', '|---|---|---|---|---|---|---|---|---|']
+             'tracking ms p95 | first model after |', '|---|---|---|---|---|---|---|---|---|---|']
     for r in doc['rows']:
         after = (f'{fmt(r["e3d_points_after_first_model"])} / '
                  f'{fmt(r.get("e3d_windows_after_first_model"))}')
@@ -143,7 +143,8 @@ def live_table(doc):
                      f'({fmt(r["windows_cpu_per_window_s"], 2)}) | '
                      f'{fmt(r.get("mapping_cpu_from_third_window_s"), 2)} '
                      f'({fmt(r.get("windows_cpu_from_third_window_s"), 2)}) | '
-                     f'{fmt(r["tracking_ms_p95"], 1)} |')
+                     f'{fmt(r["tracking_ms_p95"], 1)} | '
+                     f'{r.get("first_model_after_frames", "-")} |')
     causal = [r for r in doc['rows'] if 'e3d_causal_startup' in r]
     if causal:
         lines += ['', 'A causal reference: frame t re-solved from every frame up to t (one solve '
@@ -162,12 +163,13 @@ def live_table(doc):
         lines += ['', 'The node over DDS, 300 frames of the slow face at 30 Hz '
                   '(`python -m bench.live --node`):', '',
                   '| run | frames back | latency ms p50 / p95 / max | e3D | first model after | '
-                  'commit |', '|---|---|---|---|---|---|']
+                  'model age at the end | commit |', '|---|---|---|---|---|---|---|']
         for key, r in sorted(node.items()):
             lines.append(f'| {key} tracks | {r["frames_received"]} / {r["frames"]} | '
                          f'{fmt(r["latency_ms_p50"], 1)} / {fmt(r["latency_ms_p95"], 1)} / '
                          f'{fmt(r["latency_ms_max"], 1)} | {fmt(r["e3d_received"])} | '
                          f'{r["diagnostics"].get("first model after frames", "-")} frames | '
+                         f'{r["diagnostics"].get("model age frames") or "-"} frames | '
                          f'{r.get("environment", {}).get("git") or "-"} |')
     return lines + load_table()
 
