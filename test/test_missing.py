@@ -152,3 +152,14 @@ def test_robust_weights_down_drifting_tracks_and_leaves_clean_ones():
     assert len(clean.report.downweighted_tracks) <= 3
     plain = GrassmannNRSfM().fit(drifted)
     assert plain.track_weights is None and plain.report.downweighted_tracks == []
+
+
+def test_complete_tracks_take_the_unmasked_path():
+    """Every entry seen (visible all True, or no NaN): no weights, no completion, the same
+    arrays as a plain fit (the complete path is the one before masks, record 0800)."""
+    W, _, R = deforming_sheet(F=12, P=80, seed=5)
+    plain = GrassmannNRSfM().fit(W, init=WarmStart(R=R))
+    visible = GrassmannNRSfM().fit(W, init=WarmStart(R=R), visible=np.ones((12, 80), bool))
+    assert np.array_equal(plain.S, visible.S) and np.array_equal(plain.R, visible.R)
+    assert visible.report.completion is None and visible.report.observed_fraction == 1.0
+    assert visible.track_weights is None
