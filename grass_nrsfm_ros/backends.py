@@ -9,7 +9,8 @@ One small interface: ``feed(frame)`` (every accepted Frame, in order), ``submit(
   inline``).
 * :class:`ProcessBackend` (the node's default, ``mapping: process``, docs/decisions/0410)
   holds the mapper in a child process ('spawn': never a fork of a process with rclpy's
-  threads) at a lower CPU priority. Frames cross as they are accepted (a multiprocessing Queue:
+  threads) under SCHED_IDLE (else a lower priority): the live tracking goes first. Frames
+  cross as they are accepted (a multiprocessing Queue:
   its feeder thread pickles, the tracking thread only appends), windows as stamps; the child
   keeps the frames a later window can still name and solves only the newest window waiting (a
   newer one replaces it: 'dropped', 'skipped'). Updates come back through a pipe read by a
@@ -35,7 +36,8 @@ from grass_nrsfm_ros.windowing import Window
 
 START_METHOD = 'spawn'
 #: the child's niceness above the parent's: on a busy machine the scheduler serves the
-#: tracking (and the publishing) first, the mapping with what is left
+#: tracking (and the publishing) first, the mapping with what is left (where SCHED_IDLE is not
+#: there; with it the child runs only on CPU time nothing else wants, docs/decisions/0434)
 MAPPING_NICE = 5
 HANDOVERS_KEPT = 300        # hand-over times kept for /diagnostics
 STOP_GRACE_S = 1.0           # close() waits this long for the child, then terminates it
@@ -241,6 +243,7 @@ def child_main(config, solver_factory, inbox, outbox, cancel, blas_threads,
     Exits on 'stop' or when the parent dies."""
     if nice:
         os.nice(nice)
+    idle_scheduling()
     fix_mmap_threshold()
     threadpool_limits(limits=blas_threads)
     child = _Child(make_mapper(config, solver_factory), inbox, outbox, cancel)
@@ -248,6 +251,18 @@ def child_main(config, solver_factory, inbox, outbox, cancel, blas_threads,
     threading.Thread(target=child.read, daemon=True).start()
     child.send(('ready', os.getpid()))
     child.run()
+
+
+def idle_scheduling():
+    """Put this process under SCHED_IDLE (Linux): it runs only when no other task wants the
+    CPU. True if done."""
+    if not hasattr(os, 'SCHED_IDLE'):
+        return False
+    try:
+        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+    except OSError:
+        return False
+    return True
 
 
 def _exit_with_parent():

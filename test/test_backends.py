@@ -129,6 +129,20 @@ def test_a_mapping_process_without_on_exit_restarts_its_dead_child():
     assert not backend.alive
 
 
+@pytest.mark.skipif(not hasattr(os, 'SCHED_IDLE'), reason='SCHED_IDLE is Linux only')
+def test_the_mapping_child_runs_under_sched_idle():
+    """The child takes only CPU time the live side does not want (record 0434); the parent's
+    scheduling is left as it was."""
+    before = os.sched_getscheduler(0)
+    backend = ProcessBackend(defaults())
+    try:
+        assert wait_until(lambda: backend.pid is not None)
+        assert os.sched_getscheduler(backend.pid) == os.SCHED_IDLE
+        assert os.sched_getscheduler(0) == before != os.SCHED_IDLE
+    finally:
+        backend.close()
+
+
 # -- mapping:=process over DDS ------------------------------------------------------------------
 PERIOD = 1 / 30
 T0 = 1_700_000_000_000_000_000
