@@ -119,6 +119,15 @@ def test_bad_frames_and_tracks_are_left_out_with_a_warning(sequence, tmp_path, c
     others[[7, 9]] = False
     assert np.isfinite(np.delete(S, 3, axis=0)[:, :, others]).all()
     assert not seen[10, 11] and not seen[3].any() and seen.sum() == (F - 1) * (P - 2) - 1
+    # evaluate leaves the NaN entries out (frame 3, tracks 7 and 9) and says how many
+    assert main(['evaluate', str(tmp_path / 'out.npz'), str(tmp_path / 'in.npz')]) == 0
+    text = capsys.readouterr().out
+    left_out = P + 2 * (F - 1)
+    assert f'{left_out} of {F * P} entries not finite (tracks left out)' in text
+    assert 'e3D Akhter (one rotation' in text        # the other frames' whole tracks
+    finite = np.isfinite(S).all(axis=1)
+    assert printed_e3d(text) == pytest.approx(
+        e3d(S.reshape(3 * F, P), sequence.S, visible=finite), abs=1e-4)
 
 
 @pytest.mark.parametrize('arrays, message', [

@@ -1,8 +1,11 @@
 """``grass-nrsfm evaluate OUT.npz GT.npz``: e3D of a reconstruction against ground truth.
 
 When OUT reconstructs only some of the input's tracks (``points``, written by ``reconstruct
---complete-tracks``), the ground truth's matching columns are compared.
+--complete-tracks``), the ground truth's matching columns are compared. Entries not finite in
+either (tracks ``reconstruct`` left out as NaN) are left out, and the count is said.
 """
+import numpy as np
+
 from grass_nrsfm_ros.cli import UserError
 from grass_nrsfm_ros.commands.npz import GROUND_TRUTH_KEYS, load_shapes
 from grass_nrsfm_ros.nrsfm.metrics import e3d, e3d_akhter
@@ -32,8 +35,22 @@ def run(args):
     S_gt = matched_ground_truth(S_gt, points, S_est.shape[1])
     if S_est.shape != S_gt.shape:
         raise UserError(f'shapes differ: estimate {S_est.shape}, ground truth {S_gt.shape}')
-    print(f'e3D (per-frame Procrustes, no scale): {e3d(S_est, S_gt):.4f}')
+    F = S_est.shape[0] // 3
+    finite = (np.isfinite(S_est) & np.isfinite(S_gt)).reshape(F, 3, -1).all(axis=1)  # (F, P)
+    visible = None if finite.all() else finite
+    if visible is not None:
+        print(f'{int((~finite).sum())} of {finite.size} entries not finite (tracks left out): '
+              'compared on the rest')
+    print(f'e3D (per-frame Procrustes, no scale): {e3d(S_est, S_gt, visible=visible):.4f}')
     if args.scale:
-        print(f'e3D (per-frame Procrustes, with scale): {e3d(S_est, S_gt, scale=True):.4f}')
-    print(f'e3D Akhter (one rotation, /mean row std): {e3d_akhter(S_est, S_gt):.4f}')
+        print('e3D (per-frame Procrustes, with scale): '
+              f'{e3d(S_est, S_gt, scale=True, visible=visible):.4f}')
+    frames = finite.any(axis=1)                 # Akhter's metric needs whole columns: the
+    whole = finite[frames].all(axis=0)          # tracks finite in every frame with any
+    if whole.sum() < 3:
+        print('e3D Akhter: not computed (fewer than 3 tracks finite in every frame)')
+        return 0
+    rows = np.repeat(frames, 3)
+    print(f'e3D Akhter (one rotation, /mean row std): '
+          f'{e3d_akhter(S_est[rows][:, whole], S_gt[rows][:, whole]):.4f}')
     return 0
