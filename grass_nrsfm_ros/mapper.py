@@ -44,7 +44,8 @@ CONTEXT_TRACKS = 0.9
 #: context is carried until the frames new since that check reach this share of its frames
 RECHECK_SHARE = 0.5
 #: the largest ADMM penalty of a window with context under 'resume' (docs/decisions/0408, 0425)
-RESUMED_BETA_MAX = 10.0
+#: and of a window started from the rigid factorisation (docs/decisions/0435)
+WINDOW_BETA_MAX = 10.0
 DEPTH_FLIP = np.diag([1.0, 1.0, -1.0])
 
 
@@ -248,14 +249,16 @@ class Mapper:
 
     def _fit_kwargs(self, solver, problem, init, keep, progress):
         """The keywords of this solve's ``fit``: the start, the progress callback and, for a
-        window with context under 'resume' (resumed, or the second window of a sequence), the
-        penalty cap RESUMED_BETA_MAX (docs/decisions/0425)."""
+        window with context under 'resume' (resumed, or the second window of a sequence) and a
+        window started from the rigid factorisation (a sequence's first), the penalty cap
+        WINDOW_BETA_MAX (docs/decisions/0425, 0435)."""
         kwargs = {} if init is None else {'init': subset_init(init, keep)}
         if progress is not None and _accepts(solver.fit, 'progress'):
             kwargs['progress'] = progress
-        if self.warm_start == 'resume' and problem.n_context and hasattr(solver, 'get_params') \
-                and _accepts(solver.fit, 'beta_max'):
-            kwargs['beta_max'] = min(solver.get_params()['beta_max'], RESUMED_BETA_MAX)
+        capped = (self.warm_start == 'resume' and problem.n_context) or \
+            self.started_from == 'rigid'
+        if capped and hasattr(solver, 'get_params') and _accepts(solver.fit, 'beta_max'):
+            kwargs['beta_max'] = min(solver.get_params()['beta_max'], WINDOW_BETA_MAX)
         return kwargs
 
     def _results(self, problem, XY, Z, seen):
