@@ -25,7 +25,7 @@ from grass_nrsfm_ros import params
 from grass_nrsfm_ros.nrsfm import GrassmannNRSfM, WarmStart
 from grass_nrsfm_ros.nrsfm.density import fill_dropped
 from grass_nrsfm_ros.nrsfm.measurement import as_frames, centre
-from grass_nrsfm_ros.nrsfm.missing import complete
+from grass_nrsfm_ros.nrsfm.missing import fill_unseen
 from grass_nrsfm_ros.nrsfm.rotation import (choose_rank, DEFAULT_CANDIDATES, max_rank,
                                             normalised_svd, rigid_factorisation,
                                             rotations_from_start)
@@ -248,11 +248,14 @@ class Mapper:
         return problem, as_frames(Wc, 2), Z, flipped, seen
 
     def _fit_kwargs(self, solver, problem, init, keep, progress):
-        """The keywords of this solve's ``fit``: the start, the progress callback and, for a
+        """The keywords of this solve's ``fit``: the start, the window's completion (the
+        solver completes no window again), the progress callback and, for a
         window with context under 'resume' (resumed, or the second window of a sequence) and a
         window started from the rigid factorisation (a sequence's first), the penalty cap
         WINDOW_BETA_MAX (docs/decisions/0425, 0435)."""
         kwargs = {} if init is None else {'init': subset_init(init, keep)}
+        if not problem.seen.all() and _accepts(solver.fit, 'filled'):
+            kwargs['filled'] = problem.filled if keep is None else problem.filled[:, keep]
         if progress is not None and _accepts(solver.fit, 'progress'):
             kwargs['progress'] = progress
         capped = (self.warm_start == 'resume' and problem.n_context) or \
@@ -318,7 +321,7 @@ class Mapper:
         stamps = np.array([f.stamp_ns for f in frames], dtype=np.int64)
         W = window_matrix(frames, ids)
         return WindowProblem(window.sequence, stamps, ids, W, len(context),
-                             tuple(f.frame_id for f in frames), *completed(W))
+                             tuple(f.frame_id for f in frames), *fill_unseen(W)[:2])
 
     def _mapped_tracks(self, ids, first=False):
         """Indices (sorted) of the tracks ``ids: (P,)`` the solver sees, at most
@@ -447,17 +450,6 @@ class Mapper:
         if method == 'rigid':
             return 1
         return self._resumed_rank if method == 'given' and init is not None else None
-
-
-def completed(W):
-    """``(W_filled: (2F, P), seen: (F, P) bool)``: ``W`` with its NaN entries (tracks a frame
-    does not see) filled by the low-rank completion the solver uses; ``W`` itself when
-    complete."""
-    F = W.shape[0] // 2
-    seen = np.isfinite(W).reshape(F, 2, -1).all(axis=1)
-    if seen.all():
-        return W, seen
-    return complete(np.where(np.repeat(seen, 2, axis=0), W, 0.0), seen)[0], seen
 
 
 def rigid_start(W):

@@ -19,9 +19,9 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from grass_nrsfm_ros.mapper import completed
 from grass_nrsfm_ros.nrsfm import GrassmannNRSfM
 from grass_nrsfm_ros.nrsfm.measurement import as_frames, centre
+from grass_nrsfm_ros.nrsfm.missing import fill_unseen
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
 
 
@@ -149,7 +149,7 @@ class RigidALS:
 
     def fit(self, W, init=None):
         start = time.process_time()
-        Wc, t = centre(completed(W)[0])
+        Wc, t = centre(fill_unseen(W)[0])
         cams, X = tomasi_kanade(Wc)
         known = None if init is None or init.R is None else (
             np.ones(len(init.R), dtype=bool) if init.known is None else np.asarray(init.known))

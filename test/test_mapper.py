@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from doubles import bending_sheet, frames_of, recording_rigid, RigidALS, stacked
-from grass_nrsfm_ros.mapper import Mapper, WindowError
+from grass_nrsfm_ros.mapper import make_mapper, Mapper, WindowError
+from grass_nrsfm_ros.nrsfm import missing, problem as solver_problem
 from grass_nrsfm_ros.nrsfm.measurement import as_frames, centre
 from grass_nrsfm_ros.nrsfm.metrics import e3d
 from grass_nrsfm_ros.windowing import Windowing
@@ -204,3 +205,26 @@ def test_bad_parameters_are_refused():
         Mapper(RigidALS, mapping_tracks=5)
     with pytest.raises(ValueError, match='warm_start'):
         Mapper(RigidALS, warm_start='full')
+
+
+def test_a_window_with_unseen_entries_is_completed_once(monkeypatch):
+    """The mapper completes a window's unseen entries (missing.fill_unseen) and hands the
+    completion to the solver (``fit(W, filled=)``): one completion per window, the solver's
+    report says it was given, and the solver sees W's own values where seen."""
+    W, _, ids = bending_sheet(F=30, P=150)
+    late = ids[:15]                                     # born at frame 3: seen in 27 of 30
+    calls, real = [], missing.complete
+
+    def counting(*args, **kwargs):
+        calls.append(args[0].shape)
+        return real(*args, **kwargs)
+    monkeypatch.setattr(missing, 'complete', counting)
+    monkeypatch.setattr(solver_problem, 'complete', counting)
+    window = windows_of(W, ids, keep=lambda f, fid: (f >= 3) | ~np.isin(fid, late))[0]
+    mapper = make_mapper({})
+    mapper.solve(window)
+    assert np.isin(late, window.ids).all()
+    assert calls == [(60, 150)] and mapper.previous.report.completion == 'given'
+    problem = mapper._problem(window)
+    seen = np.repeat(problem.seen, 2, axis=0)
+    assert not seen.all() and np.array_equal(problem.filled[seen], problem.W[seen])

@@ -5,7 +5,8 @@ from test_admm import deforming_sheet, rigid_with_rotations
 
 from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM, InvalidInputError, WarmStart
 from grass_nrsfm_ros.nrsfm.admm import closed_form_shapes, weight_patterns
-from grass_nrsfm_ros.nrsfm.missing import _impute, check_mask, complete, observation_mask
+from grass_nrsfm_ros.nrsfm.missing import (_impute, check_mask, complete, fill_unseen,
+                                           observation_mask)
 from grass_nrsfm_ros.nrsfm.priors import TemporalSmoothness
 from grass_nrsfm_ros.nrsfm.synthetic import drifting_tracks, make_sequence, occlusion_mask
 
@@ -133,6 +134,33 @@ def test_visible_argument_and_nan_input_give_the_same_solve():
     report = by_nan.report
     assert report.observed_fraction == pytest.approx(visible.mean())
     assert report.completion and any('not seen' in note for note in report.notes)
+
+
+def test_fill_unseen_completes_once_and_the_solver_takes_it():
+    """``fill_unseen``: the completion and the mask (W itself when complete); a solve handed
+    that completion (``fit(W, filled=)``, as the mapper does) is the solve that completes
+    itself, array for array, and says the completion was given."""
+    seq = make_sequence('bending', n_frames=20, n_points=150, noise=0.01, seed=2)
+    visible = occlusion_mask(seq.W, 0.2, np.random.default_rng(3))
+    W = hidden(seq.W, visible)
+    filled, seen, model = fill_unseen(W)
+    assert np.array_equal(seen, visible) and model
+    assert np.array_equal(filled, complete(np.where(np.repeat(visible, 2, 0), seq.W, 0.0),
+                                           visible)[0])
+    itself, handed = GrassmannNRSfM().fit(W), GrassmannNRSfM().fit(W, filled=filled)
+    assert np.array_equal(itself.S, handed.S) and np.array_equal(itself.R, handed.R)
+    assert handed.report.completion == 'given' and itself.report.completion == model
+    same, all_seen, none = fill_unseen(seq.W)
+    assert same is seq.W and all_seen.all() and none is None
+
+
+@pytest.mark.parametrize('filled, needle', [(np.zeros((4, 4)), 'filled must be a'),
+                                            (np.full((40, 150), np.nan), 'finite')])
+def test_a_bad_handed_completion_is_refused(filled, needle):
+    seq = make_sequence('bending', n_frames=20, n_points=150, noise=0.01, seed=2)
+    W = hidden(seq.W, occlusion_mask(seq.W, 0.2, np.random.default_rng(3)))
+    with pytest.raises(InvalidInputError, match=needle):
+        GrassmannNRSfM().fit(W, filled=filled)
 
 
 def test_robust_weights_down_drifting_tracks_and_leaves_clean_ones():

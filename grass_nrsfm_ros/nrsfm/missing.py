@@ -7,6 +7,8 @@ observed), ``weights: (2F, P)`` the data term's per-entry weights in [0, 1] (0: 
   entry is seen (the complete path, unchanged);
 * :func:`check_mask`: what a masked solve needs (every frame and every track seen often enough),
   or InvalidInputError naming the first frame or track that breaks it;
+* :func:`fill_unseen`: ``W`` (NaN unseen) -> ``(filled, seen, model)``, :func:`complete` on
+  its mask (computed once per window: the mapper hands it to the solver);
 * :func:`complete`: the unseen entries of W filled by an iterative rank-r SVD imputation
   (hard impute) of ``W - t 1^T`` (t: the per-row translation, re-estimated every sweep), the
   rank chosen on held-out observed entries. Dai's rotations, the initial shapes and the stages
@@ -153,6 +155,18 @@ def completion_model(W, observed, random_state=0):
         return models[0]
     errors = [np.linalg.norm((_impute(Ws, train, m) - Ws)[test]) for m in models]
     return models[int(np.argmin(errors))]
+
+
+def fill_unseen(W, visible=None, random_state=0):
+    """``(filled: (2F, P) float64, seen: (F, P) bool, model: str or None)``: ``W`` (NaN where
+    not seen; ``visible: (F, P)`` marks more unseen entries) with its unseen entries completed
+    by :func:`complete`; ``W`` itself, every entry seen and model None when complete. The one
+    completion of a window: the mapper hands it to the solver (``fit(W, filled=)``)."""
+    W, mask = observation_mask(W, visible)
+    if mask is None:
+        return W, np.ones((W.shape[0] // 2, W.shape[1]), dtype=bool), None
+    filled, model = complete(np.where(np.repeat(mask, 2, axis=0), W, 0.0), mask, random_state)
+    return filled, mask, model
 
 
 def complete(W, mask, random_state=0):

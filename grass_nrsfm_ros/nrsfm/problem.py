@@ -106,9 +106,10 @@ class Problem:
     """A checked problem: ``W: (2F, P)`` tracks as given, ``Wn: (2F, P)`` centred and divided by
     ``scale``, ``translation: (2F, 1)`` the row means; ``init`` the warm start (``given``: the
     caller passed one), ``known: (F,)``, ``groups: (P,)`` dense labels or None; ``weights:
-    (2F, P)`` the data term's weights or None (every entry 1). Where entries are not seen
-    (weight 0), ``W`` holds them completed (:func:`.missing.complete`, the model named by
-    ``completion``) and ``translation`` is the completed rows' mean."""
+    (2F, P)`` the data term's weights or None (every entry 1); ``seen: (F, P)`` the entries
+    observed (None: all). Where entries are not seen (weight 0), ``W`` holds them completed
+    (:func:`.missing.complete`, or handed over: 'given', the model named by ``completion``)
+    and ``translation`` is the completed rows' mean."""
     W: np.ndarray
     Wn: np.ndarray
     translation: np.ndarray
@@ -119,20 +120,27 @@ class Problem:
     given: bool
     weights: np.ndarray = None
     completion: str = None
+    seen: np.ndarray = None
 
     @classmethod
-    def from_tracks(cls, W, init=None, visible=None, random_state=0):
+    def from_tracks(cls, W, init=None, visible=None, random_state=0, filled=None):
         """Check ``W`` and ``init`` (raises InvalidInputError naming what is wrong). ``W`` may
         hold NaN where a track is not seen, ``visible: (F, P)`` bool marks more unseen
-        entries; unseen entries are completed (``random_state``: the completion's hold-out)."""
+        entries; unseen entries are completed (``random_state``: the completion's hold-out),
+        or taken from ``filled: (2F, P)`` when given (a completion already made,
+        :func:`.missing.fill_unseen`; its seen entries are W's)."""
         W, mask = observation_mask(W, visible)
         weights = completion = None
         if mask is None:
             W = validate_tracks(W, min_frames=3, min_points=4)
         else:
             check_mask(mask, min_frames=3, min_points=4)
+            seen = np.repeat(mask, 2, axis=0)
+            if filled is None:
+                W, completion = complete(np.where(seen, W, 0.0), mask, random_state)
+            else:
+                W, completion = np.where(seen, W, checked_filled(filled, W.shape)), 'given'
             weights = entry_weights(mask)
-            W, completion = complete(np.where(weights > 0, W, 0.0), mask, random_state)
         given = init is not None
         init = init if given else WarmStart()
         if not isinstance(init, WarmStart):
@@ -141,12 +149,13 @@ class Problem:
         Wn, translation = centre(W)
         scale = track_scale(Wn)
         Wn /= scale                                     # centred, unit RMS
-        return cls(W, Wn, translation, scale, init, known, groups, given, weights, completion)
+        return cls(W, Wn, translation, scale, init, known, groups, given, weights, completion,
+                   mask)
 
     @property
     def mask(self):
         """``(F, P)`` bool: the entries seen (None: all)."""
-        return None if self.weights is None else self.weights[0::2] > 0
+        return self.seen
 
     def weighted(self, track_weights):
         """The problem with each track's weights multiplied by ``track_weights: (P,)``."""
@@ -173,14 +182,27 @@ class Problem:
         S = None if self.init.S is None else np.asarray(self.init.S)[:, keep]
         groups = None if self.groups is None else dense_labels(self.groups[keep])
         weights = None if self.weights is None else self.weights[:, keep]
+        seen = None if self.seen is None else self.seen[:, keep]
         return replace(self, W=W, Wn=centre(W)[0] / self.scale, init=replace(self.init, S=S),
-                       groups=groups, weights=weights)
+                       groups=groups, weights=weights, seen=seen)
 
     def with_rotations(self, R):
         """The problem solved afresh with the rotations ``R: (F, 3, 3)`` given for every
         frame (and nothing else given)."""
         return replace(self, init=WarmStart(R=R), known=np.ones(self.F, dtype=bool),
                        groups=None, given=True)
+
+
+def checked_filled(filled, shape):
+    """``filled`` as float64 if it is a finite array of ``shape``, else InvalidInputError."""
+    filled = np.asarray(filled)
+    if filled.shape != shape or filled.dtype.kind not in 'fiu':
+        raise InvalidInputError(f'filled must be a {shape} array of numbers; got '
+                                f'{filled.shape} {filled.dtype}')
+    filled = filled.astype(np.float64, copy=False)
+    if not np.isfinite(filled).all():
+        raise InvalidInputError('filled must be finite everywhere (a completion of W)')
+    return filled
 
 
 def check_init(init, F, P):

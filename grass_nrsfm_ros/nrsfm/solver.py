@@ -75,10 +75,11 @@ class GrassmannNRSfM:
         return f'{type(self).__name__}({args})'
 
     # the chain ---------------------------------------------------------------------------------
-    def fit(self, W, init=None, progress=None, beta_max=None, visible=None):
+    def fit(self, W, init=None, progress=None, beta_max=None, visible=None, filled=None):
         """Reconstruct ``W: (2F, P)``, NaN where a track is not seen (and ``visible: (F, P)``
         bool, optional, False where not seen): every track in every frame, the unseen entries
-        filled by the low-rank model (:mod:`.missing`). ``init``: optional
+        filled by the low-rank model (:mod:`.missing`), or taken from ``filled: (2F, P)``, a
+        completion already made (:func:`.missing.fill_unseen`). ``init``: optional
         :class:`WarmStart`; ``progress``:
         optional ``callback(iteration, report)`` called after every ADMM iteration;
         ``beta_max``: this call's cap on the penalty (None: the ``beta_max`` parameter), for
@@ -100,7 +101,7 @@ class GrassmannNRSfM:
             return self._perspective(W, init, progress, beta_max)
         with one_blas_thread():
             start, timer = time.perf_counter(), Timer()
-            problem = Problem.from_tracks(W, init, visible, params['random_state'])
+            problem = Problem.from_tracks(W, init, visible, params['random_state'], filled)
             report = SolverReport()
             track_weights = None
             if robust.applies(problem, params):
@@ -190,7 +191,7 @@ def shape_pass(problem, R, params, report, timer=None, progress=None, reason='sh
     report.K_s, report.K_t, report.N_s, report.N_t = K_s, K_t, N_s, N_t
     report.gamma = params['gamma'] * np.sqrt(F * P)
     report.warm_started_frames = int(solved.known.sum()) if solved.warm else 0
-    if problem.weights is not None:
+    if problem.mask is not None:
         report.observed_fraction = float(problem.mask.mean())
         report.completion = problem.completion
     S, state = admm_solve(solved, R, params, spatial, report, timer, progress, reason)
