@@ -7,6 +7,9 @@ ROUNDS rounds): a drifting track leaves the low-rank span of the others, which t
 own fit (its shapes may deform per track) would absorb. Weights ``(P,)``: 1 up to
 ``median + THRESHOLD`` robust deviations (1.4826 MAD), ``(threshold / r)^2`` above (Cauchy's
 tail). They multiply the data-term weights of the whole solve (:meth:`Problem.weighted`).
+The rotations are then estimated on the tracks no weight touched (:func:`kept_tracks`, read by
+:func:`.rotations.core_tracks`, record 0805): Dai's factorisation reads every track it is given,
+and a drifting one moves its rank-3K span.
 Report: ``downweighted_tracks`` (indices), a note; the result's ``track_weights``.
 """
 import numpy as np
@@ -20,6 +23,8 @@ DETECT_RANK = 6
 ROUNDS = 3
 #: robust deviations above the median residual from which a track is weighed down
 THRESHOLD = 3.0
+#: the rotations read the kept tracks only while they are at least this share of all
+KEPT_SHARE = 0.5
 
 
 def applies(problem, params):
@@ -52,6 +57,20 @@ def track_weights(problem):
     for _ in range(ROUNDS):
         weights = cauchy_weights(residuals(problem.Wn, weights, seen))
     return weights
+
+
+def kept_tracks(problem):
+    """``(P,)`` bool: the tracks of ``problem`` whose seen entries all weigh 1 (no robust
+    weight touched them); None where none was touched, or where fewer than KEPT_SHARE of the
+    tracks are kept (then every track)."""
+    weights = problem.weights
+    if weights is None:
+        return None
+    seen = np.repeat(problem.mask, 2, axis=0) if problem.mask is not None else weights > 0
+    kept = ~(seen & (weights < 1)).any(axis=0)
+    if kept.all() or kept.sum() < KEPT_SHARE * kept.size:
+        return None
+    return kept
 
 
 def run(problem, params, report):

@@ -4,11 +4,13 @@ Given for every frame (``init.R`` with all frames known): used as they are. Othe
 from ``Wn: (2F, P)`` by Dai et al.'s method ('dai', and 'auto' before the rotation check) or
 the rigid factorisation ('rigid'), then aligned to the given ones on the known frames. With
 unseen entries (a masked problem) on :func:`core_tracks`: the tracks seen in every frame while
-they are at least CORE_SHARE of all, else the completed tracks (docs/decisions/0432).
+they are at least CORE_SHARE of all, else the completed tracks (docs/decisions/0432); tracks the
+robust weights touched are left out (:func:`.robust.kept_tracks`, docs/decisions/0805).
 Report: ``rotation_method`` ('given', 'dai' or 'rigid'), ``K_rot`` (Dai's rank or None).
 """
 import numpy as np
 
+from . import robust
 from ..rotation import align_rotations, estimate_rotations, rigid_factorisation
 
 NAME = 'rotations'
@@ -50,10 +52,15 @@ def run(problem, params, report):
 
 
 def core_tracks(problem):
-    """Columns of ``problem`` the rotations are estimated on: the tracks seen in every frame
-    while they are CORE_SHARE of all (and CORE_MIN), else every track (completed)."""
+    """Columns of ``problem`` the rotations are estimated on: of the tracks the robust weights
+    kept (:func:`.robust.kept_tracks`; all where none was weighed down), those seen in every
+    frame while they are CORE_SHARE of all (and CORE_MIN), else all of them (completed)."""
+    kept = robust.kept_tracks(problem)
     mask = problem.mask
     if mask is None:
-        return slice(None)
-    core = np.flatnonzero(mask.all(axis=0))
-    return core if core.size >= max(CORE_MIN, CORE_SHARE * mask.shape[1]) else slice(None)
+        return slice(None) if kept is None else np.flatnonzero(kept)
+    full = mask.all(axis=0) if kept is None else mask.all(axis=0) & kept
+    core = np.flatnonzero(full)
+    if core.size >= max(CORE_MIN, CORE_SHARE * mask.shape[1]):
+        return core
+    return slice(None) if kept is None else np.flatnonzero(kept)
