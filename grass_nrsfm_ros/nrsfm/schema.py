@@ -190,8 +190,9 @@ SOLVER_PARAMS = (
     _mode('robust', 'never', ('never', 'cauchy'),
           "'cauchy': tracks whose residual against a low-rank approximation of all tracks is "
           "far above the others (a tracker's drift or jumps) weighed down in the data term "
-          "(Cauchy's tail beyond 3 robust deviations), reported as downweighted_tracks; "
-          "'never': plain least squares (docs/decisions/0801)."),
+          "(Cauchy's tail beyond 3 robust deviations) and left out of the rotations, "
+          "reported as downweighted_tracks; 'never': plain least squares "
+          '(docs/decisions/0801, 0805).'),
     _number('rho', 1.2, 'Growth factor of the penalty beta per iteration: closer to 1 for a '
             'slower, more gradual schedule (more iterations).', 1.0, open_low=True),
     _number('beta0', 1e-3, 'Initial penalty beta (also of a resumed solve): lower lets the '
