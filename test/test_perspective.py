@@ -75,3 +75,39 @@ def test_output_is_in_the_camera_frame_at_the_given_scale():
 def test_bad_parameters_say_why(kwargs, words):
     with pytest.raises(InvalidInputError, match=words):
         PerspectiveNRSfM(**kwargs).fit(camera.project(rigid_object(F=5, P=10)))
+
+
+class FlatOnCall(FlippingRigid):
+    """FlippingRigid whose ``flat``-th solve returns no depth (tshirt10's second round did)."""
+
+    def __init__(self, flat):
+        super().__init__()
+        self.flat = flat
+
+    def fit(self, W):
+        result = super().fit(W)
+        if self.calls == self.flat:
+            S = as_frames(result.S, 3).copy()
+            S[:, 2] = 0.0
+            result = SimpleNamespace(S=from_frames(S))
+        return result
+
+
+def test_a_solve_with_flat_depths_stops_the_iteration_and_is_not_kept():
+    S = rigid_object(0, F=12, P=60)
+    x = camera.project(S)
+    # calls: round 0, the two sign trials of round 1, then round 2 (flat)
+    result = fit_perspective(x, FlatOnCall(4), max_rounds=4, tol=1e-9)
+    last = result.rounds[-1]
+    assert last.index == 2 and last.change == np.inf, result.report()
+    assert result.stopped.startswith('flat depths') and result.kept != 2
+    assert np.linalg.norm(result.delta) > 0
+    np.testing.assert_allclose(camera.project(result.S), x, atol=1e-12)
+
+
+def test_a_flat_sign_trial_is_not_chosen():
+    S = rigid_object(1, F=12, P=60)
+    result = fit_perspective(camera.project(S), FlatOnCall(2), max_rounds=1)
+    trial = [r for r in result.rounds if r.trial]
+    assert len(trial) == 1 and trial[0].change == np.inf
+    assert np.isfinite(result.rounds[-1].change)

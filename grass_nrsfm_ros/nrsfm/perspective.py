@@ -20,8 +20,9 @@ from the reconstruction's centred depths; solve on ``x (1 + delta)``; repeat.
   reconstruction of its input ``x (1 + delta_prev)`` (its x, y plus the input's per-frame
   centroid) at the depths ``1 + delta`` it found, projected, against ``x``.
 * Stopping: when the relative change of ``delta`` (``||delta_k - delta_k-1|| / ||delta_k||``)
-  falls below ``tol``, when the residual rises, or after ``max_rounds`` rounds. The round of
-  lowest residual is returned.
+  falls below ``tol``, when the residual rises, when a solve returns flat depths (the round is
+  void, :func:`depth_change`), or after ``max_rounds`` rounds. The round of lowest residual is
+  returned.
 
 Output, in the camera frame and consistent with the pinhole: ``Z = scale (1 + delta)``,
 ``X = Z x``, ``Y = Z y``, so ``S`` projects exactly onto the given ``x``. The monocular scale
@@ -43,6 +44,9 @@ MAX_ROUNDS = 4
 TOL = 0.02
 #: 1 + delta is kept at least this (a point cannot reach the camera's plane)
 MIN_RELATIVE_DEPTH = 0.1
+#: a solve whose centred depths' RMS is below this fraction of the tracks' RMS spread
+#: returned a flat shape (tshirt10's second round: exactly zero depths): the round is void
+FLAT_DEPTHS = 1e-6
 
 
 @dataclass
@@ -104,6 +108,18 @@ def agreeing_signs(delta, previous):
     """``(F,)`` of +-1: per frame, the sign of ``delta: (F, P)`` that agrees with
     ``previous: (F, P)`` (non-negative correlation)."""
     return np.where(np.einsum('fp,fp->f', delta, previous) >= 0.0, 1.0, -1.0)
+
+
+def depth_change(new, previous, x):
+    """``||new - previous|| / ||new||`` of relative depths ``(F, P)``; inf where ``new`` is
+    flat (RMS below FLAT_DEPTHS of the normalised tracks' ``x: (2F, P)`` RMS spread about
+    each frame's centroid): such a solve found no depth, and its ratio would be noise over
+    nothing."""
+    spread = np.sqrt(np.mean((x - x.mean(axis=1, keepdims=True)) ** 2))
+    size = np.linalg.norm(new)
+    if size <= FLAT_DEPTHS * spread * np.sqrt(new.size):
+        return float('inf')
+    return float(np.linalg.norm(new - previous) / size)
 
 
 def perspective_residual(S, W_in, x, delta):
@@ -214,13 +230,17 @@ class PerspectiveNRSfM:
         for index in range(1, max_rounds + 1):
             if index == 1:
                 trials = [self._round(solver, x, s * delta, index) for s in (1.0, -1.0)]
-                trials.sort(key=lambda trial: (trial[0].fit, trial[0].residual))
+                trials.sort(key=lambda trial: (not np.isfinite(trial[0].change), trial[0].fit,
+                                               trial[0].residual))
                 trials[1][0].trial = True
                 rounds.append(trials[1][0])
                 record, new, result = trials[0]
             else:
                 record, new, result = self._round(solver, x, delta, index)
             rounds.append(record)
+            if not np.isfinite(record.change):
+                stopped = 'flat depths: the solve returned no depth (round not kept)'
+                break
             if record.residual < best[0]:
                 best = (record.residual, index, new, result)
             if record.change < tol:
@@ -245,7 +265,7 @@ class PerspectiveNRSfM:
         raw = centred_depths(result.S)
         sign = agreeing_signs(raw, delta)
         new = raw * sign[:, None]
-        change = float(np.linalg.norm(new - delta) / max(np.linalg.norm(new), 1e-300))
+        change = depth_change(new, delta, x)
         record = PerspectiveRound(index, perspective_residual(result.S, W_in, x, new), change,
                                   sign, new, fit=fit_residual(result, W_in))
         return record, new, result
