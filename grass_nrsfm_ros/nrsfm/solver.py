@@ -21,13 +21,16 @@ from threadpoolctl import ThreadpoolController
 
 from . import config
 from .admm import AdmmRun, AdmmState, run, Timer
-from .measurement import from_frames, InvalidInputError
+from .measurement import as_frames, from_frames, InvalidInputError
 from .perspective import PerspectiveNRSfM
-from .problem import initial_shapes, NRSfMResult, Problem, SolverReport
+from .problem import initial_shapes, NRSfMResult, Problem, SolverReport, WarmStart
 from .schema import SOLVER_PARAMS, SOLVER_SPECS, validate_solver
 from .stages import (fill, refinement, registration, robust, rotation_check, rotations,
                      thinning)
 
+#: a masked problem's solve is followed by this many refill rounds (docs/decisions/0802)
+REFILL_ROUNDS = 1
+REFILL = 'refill'
 #: BLAS threads inside fit: the rotation step, the initialisation and the iterations make
 #: thousands of small BLAS calls, faster on one thread, and the thread count changes rounding
 BLAS_THREADS = 1
@@ -126,7 +129,32 @@ class GrassmannNRSfM:
             if track_weights is not None:
                 result.report.downweighted_tracks = report.downweighted_tracks
                 result = replace(result, track_weights=track_weights)
-            return result
+        if problem.mask is not None and REFILL_ROUNDS:
+            result = self._refilled(problem, result, progress, beta_max)
+        return result
+
+    def _refilled(self, problem, first, progress, beta_max):
+        """The stage 'refill' of a masked problem: REFILL_ROUNDS times, the unseen entries
+        replaced by the solve's reprojection ``R S + t`` and the tracks solved again as complete
+        ones, resumed from its rotations and shapes (docs/decisions/0802). The report: the
+        first solve's mask, completion and rotations (method, Dai's rank, check), its stages,
+        notes and solves then the last round's; the robust weights (``robust`` asked) are the
+        last round's, taken on its refilled tracks."""
+        seen, result = np.repeat(problem.mask, 2, axis=0), first
+        for _ in range(REFILL_ROUNDS):
+            again = np.where(seen, problem.W, reprojection(result))
+            start = WarmStart(R=result.R, S=result.S, resumed=True)
+            result = self.fit(again, init=start, progress=progress, beta_max=beta_max)
+        report, base = result.report, first.report
+        report.seconds = {k: base.seconds.get(k, 0.0) + report.seconds.get(k, 0.0)
+                          for k in {**base.seconds, **report.seconds}}
+        report.stages = base.stages + [REFILL] * REFILL_ROUNDS + report.stages
+        report.solves = base.solves + report.solves
+        report.notes = base.notes + report.notes
+        report.observed_fraction, report.completion = base.observed_fraction, base.completion
+        report.rotation_method, report.K_rot = base.rotation_method, base.K_rot
+        report.rotation_checked = base.rotation_checked
+        return result
 
     def _perspective(self, W, init, progress, beta_max):
         """``projection='perspective'``: the projective-depth iteration around this chain run
@@ -166,6 +194,12 @@ class _Rounds:
         result = self.solver.fit(W, **self.kwargs)
         self.kwargs = {**self.kwargs, 'init': None}
         return result
+
+
+def reprojection(result):
+    """``(2F, P)``: ``R S + t`` of ``result`` (its camera-frame x, y rows and translation)."""
+    F = result.R.shape[0]
+    return as_frames(result.S, 3)[:, :2, :].reshape(2 * F, -1) + result.translation
 
 
 def shape_pass(problem, R, params, report, timer=None, progress=None, reason='shapes'):
