@@ -7,24 +7,36 @@ factorisation's; the issue's bar is <= 0.6 for every sheet):
 * ``no_inextensible``: the same with ``inextensible='never'`` (the paper's chain);
 * ``isometry_solver`` / ``isometry_sync``: the default result's depths replaced by the local-
   isometry depths of :mod:`grass_nrsfm_ros.nrsfm.isometry` (gradient signs from the solver's
-  own depths, or synchronised over the neighbour graph).
+  own depths, or synchronised over the neighbour graph);
+* ``sheet_registered``: the prior inside the estimation (:class:`isometry.SheetNRSfM` with
+  ``alternations=1``): the rotations registered to the 'sync' sheet depths, the solver run
+  again from them and from those shapes, its depths refined again (docs/decisions/0706).
 
 Sequences: the package's synthetic 'bending' and 'waving' sheets (orbiting camera, several
 seeds) and the front end's rendered sheets (:func:`frontend.scenes.sheet_scene`: a head-turn
-camera; perfect tracks of surface samples), orthographic. Writes ``bench/results/sheets.json``.
-``python -m bench.sheets [--smoke|--full]``.
+camera; perfect tracks of surface samples), each orthographic and through a pinhole
+(normalised tracks; the synthetic sheets 5 sizes from the camera as in
+:mod:`bench.perspective`, the rendered ones where the renderer put them, f = 620 px at 640 x
+480). Under the pinhole every option runs inside the projective-depth iteration
+(:class:`perspective.PerspectiveNRSfM`) and rigid factorisation is of the normalised tracks;
+``no_inextensible`` and ``isometry_solver`` are orthographic only. Writes
+``bench/results/sheets.json``. ``python -m bench.sheets [--smoke|--full]``.
 """
 import sys
 
 import numpy as np
 
-from grass_nrsfm_ros.nrsfm import faces, isometry, metrics, synthetic
+from grass_nrsfm_ros.nrsfm import camera, faces, isometry, metrics, synthetic
 from grass_nrsfm_ros.nrsfm.measurement import as_frames, from_frames
+from grass_nrsfm_ros.nrsfm.perspective import PerspectiveNRSfM
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
 from grass_nrsfm_ros.nrsfm.solver import GrassmannNRSfM
 from . import common
+from .perspective import sheet_shapes
 
 BAR = 0.6
+#: the synthetic sheets' distance from the pinhole (their size is about 2)
+DISTANCE = 5.0
 
 
 def rendered_sheet(kind, F, P, seed):
@@ -40,43 +52,75 @@ def rendered_sheet(kind, F, P, seed):
 
 
 def sequences(mode):
+    """``(name, projection, W, S)``: tracks ``W: (2F, P)`` (orthographic, or normalised pinhole)
+    and camera-frame truth ``S: (3F, P)``."""
     F, P = mode.pick((20, 150), (40, 300), (60, 500))
     seeds = mode.pick((0,), (0, 1), (0, 1, 2))
-    for kind in ('bending', 'waving'):
-        for seed in seeds:
-            seq = synthetic.make_sequence(kind, n_frames=F, n_points=P, seed=seed)
-            yield f'synthetic_{kind}_seed{seed}', seq.W, seq.S
-            yield (f'rendered_{kind}_seed{seed}',) + rendered_sheet(kind, F, P, seed)
+    for projection in ('orthographic', 'pinhole'):
+        for kind in ('bending', 'waving'):
+            for seed in seeds:
+                if projection == 'orthographic':
+                    seq = synthetic.make_sequence(kind, n_frames=F, n_points=P, seed=seed)
+                    W, S = seq.W, seq.S
+                else:
+                    S = sheet_shapes(kind, F, P, seed, DISTANCE)
+                    W = camera.project(S)
+                yield f'synthetic_{kind}_seed{seed}', projection, W, S
+                W, S = rendered_sheet(kind, F, P, seed)
+                if projection == 'pinhole':
+                    W = camera.project(S)
+                yield f'rendered_{kind}_seed{seed}', projection, W, S
 
 
-def case(name, W, S):
-    common.log(f'sheets: {name}')
+def options(projection):
+    """``{option: solver}`` measured under ``projection`` (each a ``fit(W) -> result``)."""
+    chosen = {'default': GrassmannNRSfM(),
+              'isometry_sync': isometry.SheetNRSfM(GrassmannNRSfM(), signs='sync'),
+              'sheet_registered': isometry.SheetNRSfM(GrassmannNRSfM(), signs='sync',
+                                                      alternations=1)}
+    if projection == 'orthographic':
+        chosen['no_inextensible'] = GrassmannNRSfM(inextensible='never')
+        chosen['isometry_solver'] = isometry.SheetNRSfM(GrassmannNRSfM(), signs='solver')
+        return chosen
+    return {name: PerspectiveNRSfM(solver) for name, solver in chosen.items()}
+
+
+def case(name, projection, W, S):
+    common.log(f'sheets: {name} {projection}')
     e3d = lambda est: metrics.e3d(est, S, scale=True)     # noqa: E731
     rigid = e3d(rigid_factorisation(W)[1])
-    default = GrassmannNRSfM().fit(W)
-    row = {'sequence': name, 'F': W.shape[0] // 2, 'P': W.shape[1], 'rigid': rigid,
-           'default': e3d(default.S),
-           'no_inextensible': e3d(GrassmannNRSfM(inextensible='never').fit(W).S)}
-    for signs in ('solver', 'sync'):
-        row[f'isometry_{signs}'] = e3d(isometry.refine_sheet(default.S, W, signs=signs)[0])
-    row['ratios'] = {k: row[k] / rigid for k in
-                     ('default', 'no_inextensible', 'isometry_solver', 'isometry_sync')}
+    row = {'sequence': name, 'projection': projection, 'F': W.shape[0] // 2, 'P': W.shape[1],
+           'rigid': rigid}
+    for option, solver in options(projection).items():
+        row[option] = e3d(solver.fit(W).S)
+    row['ratios'] = {k: row[k] / rigid for k in OPTIONS if k in row}
     return row
+
+
+OPTIONS = ('default', 'no_inextensible', 'isometry_solver', 'isometry_sync',
+           'sheet_registered')
 
 
 def run(mode):
     rows = [case(*seq) for seq in sequences(mode)]
-    options = list(rows[0]['ratios'])
-    print(f"{'sequence':28s} {'rigid':>7s} " + ' '.join(f'{o:>16s}' for o in options))
+    print(f"{'sequence':28s} {'projection':12s} {'rigid':>7s} " +
+          ' '.join(f'{o:>16s}' for o in OPTIONS))
     for row in rows:
-        print(f"{row['sequence']:28s} {row['rigid']:7.4f} " +
-              ' '.join(f"{row[o]:.4f} ({row['ratios'][o]:.2f})" for o in options))
-    summary = {o: {'worst_ratio': max(r['ratios'][o] for r in rows),
-                   'sheets_within_bar': sum(r['ratios'][o] <= BAR for r in rows)}
-               for o in options}
-    for o, s in summary.items():
-        print(f"{o:16s} worst ratio {s['worst_ratio']:.2f}, {s['sheets_within_bar']} of "
-              f'{len(rows)} within {BAR}')
+        print(f"{row['sequence']:28s} {row['projection']:12s} {row['rigid']:7.4f} " +
+              ' '.join(f"{row[o]:.4f} ({row['ratios'][o]:.2f})" if o in row else f"{'-':>16s}"
+                       for o in OPTIONS))
+    summary = {}
+    for projection in ('orthographic', 'pinhole', 'all'):
+        chosen = [r for r in rows if projection in ('all', r['projection'])]
+        summary[projection] = {
+            o: {'worst_ratio': max(r['ratios'][o] for r in chosen),
+                'sheets_within_bar': sum(r['ratios'][o] <= BAR for r in chosen),
+                'sheets': len(chosen)}
+            for o in OPTIONS if all(o in r['ratios'] for r in chosen)}
+    for projection, options_ in summary.items():
+        for o, s in options_.items():
+            print(f"{projection:12s} {o:16s} worst ratio {s['worst_ratio']:.2f}, "
+                  f"{s['sheets_within_bar']} of {s['sheets']} within {BAR}")
     path = common.write_result(mode, 'sheets', {'rows': rows, 'summary': summary, 'bar': BAR})
     common.log(f'wrote {path}')
     return rows

@@ -303,12 +303,15 @@ def perspective_table(doc):
 
 
 def sheets_table(doc):
-    options = list(doc['rows'][0]['ratios'])
-    lines = ['| sheet | F x P | rigid | ' + ' | '.join(f'{o} (/ rigid)' for o in options) + ' |',
-             '|---|---|---|' + '---|' * len(options)]
+    options = list(dict.fromkeys(o for r in doc['rows'] for o in r['ratios']))
+    lines = ['| sheet | projection | F x P | rigid | ' +
+             ' | '.join(f'{o} (/ rigid)' for o in options) + ' |',
+             '|---|---|---|---|' + '---|' * len(options)]
     for r in doc['rows']:
-        lines.append(f"| {r['sequence']} | {r['F']} x {r['P']} | {fmt(r['rigid'])} | "
-                     + ' | '.join(f"{fmt(r[o])} ({fmt(r['ratios'][o], 2)})" for o in options)
+        lines.append(f"| {r['sequence']} | {r.get('projection', 'orthographic')} | {r['F']} x "
+                     f"{r['P']} | {fmt(r['rigid'])} | "
+                     + ' | '.join(f"{fmt(r[o])} ({fmt(r['ratios'][o], 2)})" if o in r else '-'
+                                  for o in options)
                      + ' |')
     return lines
 

@@ -51,3 +51,30 @@ def test_a_bending_sheet_beats_rigid_by_the_bars_margin():
                    'rigid (docs/decisions/0701)')
 def test_the_waving_cloth_beats_rigid_by_the_bars_margin():
     assert sheet_ratio('waving') <= BAR
+
+
+class Recording:
+    """GrassmannNRSfM, recording the warm start of every fit."""
+
+    def __init__(self):
+        self.solver, self.inits = GrassmannNRSfM(), []
+
+    def fit(self, W, init=None):
+        self.inits.append(init)
+        return self.solver.fit(W, init=init)
+
+
+def test_the_prior_inside_the_estimation_restarts_the_solver_from_the_sheet():
+    seq = synthetic.make_sequence('bending', n_frames=8, n_points=120, seed=1)
+    solver = Recording()
+    result = isometry.SheetNRSfM(solver, signs='sync', alternations=2).fit(seq.W)
+    assert len(solver.inits) == 3 and solver.inits[0] is None
+    for init in solver.inits[1:]:
+        assert init.resumed and init.S.shape == seq.S.shape and init.R.shape == (8, 3, 3)
+        np.testing.assert_allclose(np.einsum('fij,fkj->fik', init.R, init.R),
+                                   np.broadcast_to(np.eye(3), (8, 3, 3)), atol=1e-9)
+    # the second start holds the first restart's sheet depths, refined from its result
+    again = isometry.refine_sheet(solver.solver.fit(seq.W, init=solver.inits[1]).S, seq.W,
+                                  signs='sync')[0]
+    np.testing.assert_allclose(solver.inits[2].S, again, atol=1e-9)
+    assert 'sheet prior' in result.report.notes[-1]

@@ -155,25 +155,41 @@ def refine_sheet(S, W, *, k=NEIGHBOURS, quantile=LENGTH_QUANTILE, anchor=ANCHOR,
 
 class SheetNRSfM:
     """``solver`` (default :class:`.solver.GrassmannNRSfM()`) followed by :func:`refine_sheet`:
-    ``fit(W: (2F, P)) -> result`` with the refined ``S`` (the solver's result otherwise)."""
+    ``fit(W: (2F, P)) -> result`` with the refined ``S`` (the solver's result otherwise).
+
+    ``alternations`` > 0 puts the prior inside the estimation: that many times, the rotations
+    are registered to the sheet depths (:func:`.inextensible.register_rotations`) and the
+    solver runs again from them and from the sheet shapes (a resumed warm start: a cold
+    solve's schedule and stages), whose result is refined again. ``solver.fit`` must then
+    take ``init`` (a :class:`.problem.WarmStart`)."""
 
     def __init__(self, solver=None, neighbours=NEIGHBOURS, quantile=LENGTH_QUANTILE,
-                 anchor=ANCHOR, signs='solver'):
+                 anchor=ANCHOR, signs='solver', alternations=0):
         self.solver = solver
         self.signs = signs
         self.neighbours = neighbours
         self.quantile = quantile
         self.anchor = anchor
+        self.alternations = alternations
+
+    def _refined(self, S, W):
+        return refine_sheet(S, W, k=self.neighbours, quantile=self.quantile,
+                            anchor=self.anchor, signs=self.signs)
 
     def fit(self, W):
+        from .inextensible import register_rotations
+        from .problem import WarmStart
         if self.solver is None:
             from .solver import GrassmannNRSfM
             solver = GrassmannNRSfM()
         else:
             solver = self.solver
         result = solver.fit(W)
-        S, info = refine_sheet(result.S, W, k=self.neighbours, quantile=self.quantile,
-                               anchor=self.anchor, signs=self.signs)
+        S, info = self._refined(result.S, W)
+        for _ in range(self.alternations):
+            R = register_rotations(S, result.R)
+            result = solver.fit(W, init=WarmStart(R=R, S=S, resumed=True))
+            S, info = self._refined(result.S, W)
         result = replace(result, S=S)
         result.report.notes.append(f'sheet prior: {info}')
         return result
