@@ -317,10 +317,10 @@ def sheets_table(doc):
 
 
 def track_streams_table(doc):
-    lines = ['| sequence | window track share | context share | refined e3D | coverage | CPU s |',
-             '|---|---|---|---|---|---|']
+    lines = ['| sequence | stream seed | window track share | context share | refined e3D | '
+             'coverage | CPU s |', '|---|---|---|---|---|---|---|']
     for r in doc['rows']:
-        lines.append(f"| {r['sequence']} {doc['F']} x {doc['P']} | {r['share']} | "
+        lines.append(f"| {r['sequence']} {doc['F']} x {doc['P']} | {r['seed']} | {r['share']} | "
                      f"{r['context']} | {fmt(r['e3d'])} | {fmt(r['coverage'], 3)} | "
                      f"{fmt(r['cpu_seconds'], 0)} |")
     return lines

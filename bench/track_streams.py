@@ -4,10 +4,15 @@ and starts it again, after a gap, under a new id (the way an image tracker's tra
 go), against the ground truth of every published entry.
 
     python -m bench.track_streams [--smoke] [--shares 1.0,0.8,0.6] [--context 0.5]
+        [--unseen free,filled] [--refill 0,1] [--core 0.5,inf] [--seeds 0,1]
 
 Per setting of the window's track share (windowing.WINDOW_TRACK_SHARE: a window is solved on
-the tracks seen in that share of its frames; 1.0 is the old rule, tracks common to all) and
-the context share (mapper.CONTEXT_TRACKS): ``points/refined`` e3D over the entries it
+the tracks seen in that share of its frames; 1.0 is the old rule, tracks common to all), the
+context share (mapper.CONTEXT_TRACKS), the data term of unseen entries ('free', shipped: left
+out; 'filled': the completion taken as seen, bench.records.r0802), the refill rounds after
+each masked solve (nrsfm.solver.REFILL_ROUNDS) and the share of complete
+tracks the rotations are estimated on (stages.rotations.CORE_SHARE, inf: every track
+completed), per stream seed: ``points/refined`` e3D over the entries it
 publishes, and its coverage (the share of each frame's tracks that it publishes: a track not
 in a window's solve is not refined). Results: bench/results/track_streams.json.
 """
@@ -18,9 +23,12 @@ import time
 import numpy as np
 
 from grass_nrsfm_ros import mapper, windowing
+from grass_nrsfm_ros.nrsfm import problem as solver_problem, solver
 from grass_nrsfm_ros.nrsfm.metrics import e3d
+from grass_nrsfm_ros.nrsfm.stages import rotations
 from grass_nrsfm_ros.pipeline import make_pipeline, reconstruct_live
 from . import common
+from .records.r0802 import unseen_weights
 
 #: per frame, the chance that a track dies; it comes back after GAP frames under a new id
 HAZARD = 0.01
@@ -60,9 +68,13 @@ def evaluate(refined, S, points):
     return float(e3d(est, S, visible=seen)), seen
 
 
-def run_one(name, S, frames, points, share, context, seed):
+def run_one(name, S, frames, points, share, context, seed, unseen='free', core=None,
+            refill=None):
     """Figures of one setting on the sequence ``name`` (truth ``S: (3F, P)``)."""
     windowing.WINDOW_TRACK_SHARE, mapper.CONTEXT_TRACKS = share, context
+    solver.REFILL_ROUNDS = solver.REFILL_ROUNDS if refill is None else refill
+    solver_problem.entry_weights = unseen_weights(unseen)
+    rotations.CORE_SHARE = rotations.CORE_SHARE if core is None else core
     pipeline = make_pipeline({'refined_from': 'last_window'})
     stamps = np.arange(len(frames), dtype=np.int64) * 33_000_000
     start = time.process_time()
@@ -71,6 +83,8 @@ def run_one(name, S, frames, points, share, context, seed):
     error, seen = evaluate(refined, S, points)
     tracked = sum(ids.size for ids, _ in frames)
     return dict(sequence=name, share=share, context=context, seed=seed, e3d=error,
+                unseen=unseen, refill=solver.REFILL_ROUNDS,
+                core_share=rotations.CORE_SHARE if np.isfinite(rotations.CORE_SHARE) else 'inf',
                 coverage=float(seen.sum() / tracked), frames_published=len(refined),
                 cpu_seconds=cpu)
 
@@ -80,26 +94,44 @@ def main(argv=None):
     parser.add_argument('--smoke', action='store_true', help='one short sequence')
     parser.add_argument('--shares', default='1.0,0.8,0.6')
     parser.add_argument('--context', default='0.9,0.5')
+    parser.add_argument('--unseen', default='free',
+                        help="the data terms of unseen entries: 'free' (shipped), 'filled'")
+    parser.add_argument('--refill', default=str(solver.REFILL_ROUNDS),
+                        help='refill rounds after each masked solve')
+    parser.add_argument('--core', default=str(rotations.CORE_SHARE),
+                        help='shares of complete tracks for the rotations (inf: never the core)')
+    parser.add_argument('--seeds', default='0', help='track stream seeds')
     args = parser.parse_args(argv)
     mode = common.Mode('smoke' if args.smoke else 'quick')
     kinds = mode.pick(['bending'], ['bending', 'waving', 'articulated'], None)
     F, P = mode.pick((40, 150), (90, 400), None)
-    shipped = (windowing.WINDOW_TRACK_SHARE, mapper.CONTEXT_TRACKS)
+    shipped = (windowing.WINDOW_TRACK_SHARE, mapper.CONTEXT_TRACKS, solver_problem.entry_weights,
+               rotations.CORE_SHARE, solver.REFILL_ROUNDS)
+    settings = [(float(share), float(context), unseen, float(core), int(refill))
+                for share in args.shares.split(',') for context in args.context.split(',')
+                for unseen in args.unseen.split(',') for core in args.core.split(',')
+                for refill in args.refill.split(',')]
     rows = []
-    for kind in kinds:
-        W, S = common.synthetic(kind, F, P, noise=0.002)
-        frames, points = track_stream(W, np.random.default_rng(0))
-        for share in (float(s) for s in args.shares.split(',')):
-            for context in (float(c) for c in args.context.split(',')):
-                row = run_one(kind, S, frames, points, share, context, 0)
-                rows.append(row)
-                common.log(f'{kind}: share {share} context {context}: refined e3D '
-                           f"{row['e3d']:.4f}, coverage {row['coverage']:.3f}, "
-                           f"{row['cpu_seconds']:.0f} CPU s")
-    windowing.WINDOW_TRACK_SHARE, mapper.CONTEXT_TRACKS = shipped
+    try:
+        for kind in kinds:
+            W, S = common.synthetic(kind, F, P, noise=0.002)
+            for seed in (int(s) for s in args.seeds.split(',')):
+                frames, points = track_stream(W, np.random.default_rng(seed))
+                for share, context, unseen, core, refill in settings:
+                    row = run_one(kind, S, frames, points, share, context, seed, unseen, core,
+                                  refill)
+                    rows.append(row)
+                    common.log(f'{kind} seed {seed}: share {share} context {context} unseen '
+                               f'{unseen} refill {refill} core {core}: refined e3D '
+                               f'{row["e3d"]:.4f}, coverage '
+                               f"{row['coverage']:.3f}, {row['cpu_seconds']:.0f} CPU s")
+    finally:
+        (windowing.WINDOW_TRACK_SHARE, mapper.CONTEXT_TRACKS, solver_problem.entry_weights,
+         rotations.CORE_SHARE, solver.REFILL_ROUNDS) = shipped
     path = common.write_result(mode, 'track_streams', {
         'rows': rows, 'hazard': HAZARD, 'gap': list(GAP), 'F': F, 'P': P,
-        'shipped': {'share': shipped[0], 'context': shipped[1]}})
+        'shipped': {'share': shipped[0], 'context': shipped[1], 'unseen': 'free',
+                    'core_share': shipped[3], 'refill': shipped[4]}})
     common.log(f'written {path}')
     return 0
 
