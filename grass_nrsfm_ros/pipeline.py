@@ -78,6 +78,7 @@ class LivePipeline:
         self.metres_per_pixel = float(metres_per_pixel)
         self.scene_depth, self.projection = float(scene_depth), projection
         self.camera = None if camera is None else validate_intrinsics(camera)
+        self.tracking.depth_sign = None if self.camera is None else low_rank_sign
         self._rays = OrderedDict()      # with K: stamp -> (ids, normalised uv, sequence)
         self._signs = {}                # with K: sequence -> its depth sign, once chosen
         self.orthographic_warning = warn_orthographic      # said once: pixels without K
@@ -111,6 +112,7 @@ class LivePipeline:
         if same:
             return False
         self.camera = K
+        self.tracking.depth_sign = None if K is None else low_rank_sign
         self.reset()
         return True
 

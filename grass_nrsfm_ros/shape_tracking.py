@@ -4,15 +4,17 @@
 :class:`~grass_nrsfm_ros.nrsfm.tracking.ShapeModel` the mapping offered (its rotation and mode
 coefficients, :class:`~grass_nrsfm_ros.nrsfm.tracking.Tracker`). Before a sequence's first
 model, frames are tracked against a rigid bootstrap model of the frames so far
-(:func:`bootstrap_model`), flat while that is ill-posed. A frame whose residual exceeds
-``residual_limit`` times the median of the last frames' is *surprising*: the caller closes the
-next window early (once per model). Pure Python and numpy: no ROS.
+(:func:`bootstrap_model`; each rebuild keeps the depth orientation of the one before,
+:func:`oriented_like`, or takes the one a ``depth_sign`` tells, :func:`oriented_by`), flat
+while that is ill-posed. A frame whose residual exceeds ``residual_limit`` times the median of
+the last frames' is *surprising*: the caller closes the next window early (once per model).
+Pure Python and numpy: no ROS.
 
 Shapes: ``ids: (P,)`` track ids, ``uv: (P, 2)`` pixels, ``xyz: (P, 3)`` camera frame in
 pixels (x, y the frame's centred u, v; z the depth).
 """
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import threading
 
 import numpy as np
@@ -68,6 +70,36 @@ def bootstrap_model(frames):
     return rigid_model(rigid_world_shape(R, W), R, ids, stamps)
 
 
+def oriented_like(model, previous):
+    """``model`` (a rank-0 bootstrap ShapeModel) mirrored in depth where its camera-frame
+    depth correlates negatively with ``previous``'s on the frames and tracks both hold (a
+    rigid factorisation's mirror is arbitrary: each rebuild would otherwise flip the published
+    depths at random); ``model`` itself without a ``previous``."""
+    if previous is None:
+        return model
+    _, a, b = np.intersect1d(model.ids, previous.ids, assume_unique=True, return_indices=True)
+    _, fa, fb = np.intersect1d(model.stamps, previous.stamps, return_indices=True)
+    depth = np.einsum('fk,kp->fp', model.R[fa, 2], model.mean[:, a])
+    before = np.einsum('fk,kp->fp', previous.R[fb, 2], previous.mean[:, b])
+    return model if np.sum(depth * before) >= 0.0 else mirrored(model)
+
+
+def oriented_by(model, frames, depth_sign):
+    """``model`` (a rank-0 bootstrap ShapeModel of ``frames``) mirrored in depth where
+    ``depth_sign`` of the frames' tracks ``x: (2F, P)`` and the model's relative depths says
+    so."""
+    x = window_matrix(frames, model.ids)                    # the model's frames, in order
+    delta = np.einsum('fk,kp->fp', model.R[:, 2], model.mean)
+    return model if depth_sign(x, delta - delta.mean(axis=1, keepdims=True)) > 0 \
+        else mirrored(model)
+
+
+def mirrored(model):
+    """``model`` with its depth mirrored (camera-frame z negated, x and y kept)."""
+    flip = np.diag([1.0, 1.0, -1.0])
+    return replace(model, mean=flip @ model.mean, R=flip @ model.R @ flip)
+
+
 class ShapeTracking:
     """See the module docstring. :meth:`track` on the tracking thread; :meth:`offer` (a new
     model) from any thread.
@@ -78,10 +110,15 @@ class ShapeTracking:
     rank, and whether it was a bootstrap frame.
     """
 
-    def __init__(self, residual_limit=3.0):
+    def __init__(self, residual_limit=3.0, depth_sign=None):
+        """``depth_sign(x: (2F, P), delta: (F, P)) -> +1 or -1``: where the frames' depth
+        sign can be told (normalised tracks of a pinhole camera:
+        :func:`~grass_nrsfm_ros.nrsfm.perspective.low_rank_sign`), each bootstrap model is
+        oriented by it; None: each keeps the orientation of the one before."""
         if not residual_limit > 1.0:
             raise ValueError(f'residual_limit={residual_limit}: must be > 1')
         self.residual_limit = float(residual_limit)
+        self.depth_sign = depth_sign
         self._tracker = None
         self._residuals = deque(maxlen=RESIDUAL_BASELINE)   # of the last tracked frames
         self._requested = False         # a fresh window asked for since the current model
@@ -183,6 +220,11 @@ class ShapeTracking:
         if self._bootstrap_seen in BOOTSTRAP_AT:
             model = bootstrap_model(self._bootstrap)
             if model is not None:
+                if self.depth_sign is not None:
+                    model = oriented_by(model, self._bootstrap, self.depth_sign)
+                else:
+                    model = oriented_like(model, None if self._tracker is None
+                                          else self._tracker.model)
                 self._tracker = Tracker(model)
         tracked = None if self._tracker is None else self._fit(frame)
         if tracked is None:
