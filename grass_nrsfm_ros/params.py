@@ -84,7 +84,7 @@ NODE_PARAMS = (
           "solved; frames and models cross between the processes); 'inline' (in the input "
           'callback, before the next frame: the output equals the offline tools for the same '
           'input, but tracking waits for each solve).', choices=MAPPINGS),
-    Param('mapping_tracks', 5000, int,
+    Param('mapping_tracks', 2000, int,
           'Most tracks a window is solved on (a fixed subset by track id); the others are '
           'filled in from their neighbours. 0: all tracks.', range=(0, 10000000)),
     Param('residual_limit', 3.0, float,
