@@ -210,7 +210,8 @@ def test_bad_parameters_are_refused():
 def test_a_window_with_unseen_entries_is_completed_once(monkeypatch):
     """The mapper completes a window's unseen entries (missing.fill_unseen) and hands the
     completion to the solver (``fit(W, filled=)``): one completion per window, the solver's
-    report says it was given, and the solver sees W's own values where seen."""
+    report says it was given, no refill round follows (record 0802), and the solver sees W's
+    own values where seen."""
     W, _, ids = bending_sheet(F=30, P=150)
     late = ids[:15]                                     # born at frame 3: seen in 27 of 30
     calls, real = [], missing.complete
@@ -225,6 +226,7 @@ def test_a_window_with_unseen_entries_is_completed_once(monkeypatch):
     mapper.solve(window)
     assert np.isin(late, window.ids).all()
     assert calls == [(60, 150)] and mapper.previous.report.completion == 'given'
+    assert 'refill' not in mapper.previous.report.stages     # WINDOW_REFILL_ROUNDS: none
     problem = mapper._problem(window)
     seen = np.repeat(problem.seen, 2, axis=0)
     assert not seen.all() and np.array_equal(problem.filled[seen], problem.W[seen])

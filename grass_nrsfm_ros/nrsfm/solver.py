@@ -78,7 +78,8 @@ class GrassmannNRSfM:
         return f'{type(self).__name__}({args})'
 
     # the chain ---------------------------------------------------------------------------------
-    def fit(self, W, init=None, progress=None, beta_max=None, visible=None, filled=None):
+    def fit(self, W, init=None, progress=None, beta_max=None, visible=None, filled=None,
+            refill_rounds=None):
         """Reconstruct ``W: (2F, P)``, NaN where a track is not seen (and ``visible: (F, P)``
         bool, optional, False where not seen): every track in every frame, the unseen entries
         filled by the low-rank model (:mod:`.missing`), or taken from ``filled: (2F, P)``, a
@@ -89,7 +90,9 @@ class GrassmannNRSfM:
         every ADMM solve of the fit. The caller owns the schedule of a window: a sliding
         window that resumes an overlapping solution (``init.resumed``), or cannot resume the
         one before it, passes its cap here (10, docs/decisions/0408, 0425); ``init.resumed``
-        alone starts the penalty at beta0 but does not cap it.
+        alone starts the penalty at beta0 but does not cap it. ``refill_rounds``: this call's
+        refill rounds of a masked problem (None: REFILL_ROUNDS; the live windows pass 0,
+        docs/decisions/0802).
 
         The chain: rotations -> rotation check -> shape pass (thinning -> ADMM -> refinement
         -> fill) -> registration (the shape pass again with registered rotations)."""
@@ -129,26 +132,27 @@ class GrassmannNRSfM:
             if track_weights is not None:
                 result.report.downweighted_tracks = report.downweighted_tracks
                 result = replace(result, track_weights=track_weights)
-        if problem.mask is not None and REFILL_ROUNDS:
-            result = self._refilled(problem, result, progress, beta_max)
+        rounds = REFILL_ROUNDS if refill_rounds is None else int(refill_rounds)
+        if problem.mask is not None and rounds > 0:
+            result = self._refilled(problem, result, progress, beta_max, rounds)
         return result
 
-    def _refilled(self, problem, first, progress, beta_max):
-        """The stage 'refill' of a masked problem: REFILL_ROUNDS times, the unseen entries
+    def _refilled(self, problem, first, progress, beta_max, rounds):
+        """The stage 'refill' of a masked problem: ``rounds`` times, the unseen entries
         replaced by the solve's reprojection ``R S + t`` and the tracks solved again as complete
         ones, resumed from its rotations and shapes (docs/decisions/0802). The report: the
         first solve's mask, completion and rotations (method, Dai's rank, check), its stages,
         notes and solves then the last round's; the robust weights (``robust`` asked) are the
         last round's, taken on its refilled tracks."""
         seen, result = np.repeat(problem.mask, 2, axis=0), first
-        for _ in range(REFILL_ROUNDS):
+        for _ in range(rounds):
             again = np.where(seen, problem.W, reprojection(result))
             start = WarmStart(R=result.R, S=result.S, resumed=True)
             result = self.fit(again, init=start, progress=progress, beta_max=beta_max)
         report, base = result.report, first.report
         report.seconds = {k: base.seconds.get(k, 0.0) + report.seconds.get(k, 0.0)
                           for k in {**base.seconds, **report.seconds}}
-        report.stages = base.stages + [REFILL] * REFILL_ROUNDS + report.stages
+        report.stages = base.stages + [REFILL] * rounds + report.stages
         report.solves = base.solves + report.solves
         report.notes = base.notes + report.notes
         report.observed_fraction, report.completion = base.observed_fraction, base.completion
