@@ -10,7 +10,7 @@ Per setting of the window's track share (windowing.WINDOW_TRACK_SHARE: a window 
 the tracks seen in that share of its frames; 1.0 is the old rule, tracks common to all), the
 context share (mapper.CONTEXT_TRACKS), the data term of unseen entries ('free', shipped: left
 out; 'filled': the completion taken as seen, bench.records.r0802), the refill rounds after
-each masked solve (nrsfm.solver.REFILL_ROUNDS) and the share of complete
+each masked window solve (mapper.WINDOW_REFILL_ROUNDS) and the share of complete
 tracks the rotations are estimated on (stages.rotations.CORE_SHARE, inf: every track
 completed), per stream seed: ``points/refined`` e3D over the entries it
 publishes, and its coverage (the share of each frame's tracks that it publishes: a track not
@@ -23,7 +23,7 @@ import time
 import numpy as np
 
 from grass_nrsfm_ros import mapper, windowing
-from grass_nrsfm_ros.nrsfm import problem as solver_problem, solver
+from grass_nrsfm_ros.nrsfm import problem as solver_problem
 from grass_nrsfm_ros.nrsfm.metrics import e3d
 from grass_nrsfm_ros.nrsfm.stages import rotations
 from grass_nrsfm_ros.pipeline import make_pipeline, reconstruct_live
@@ -72,7 +72,7 @@ def run_one(name, S, frames, points, share, context, seed, unseen='free', core=N
             refill=None):
     """Figures of one setting on the sequence ``name`` (truth ``S: (3F, P)``)."""
     windowing.WINDOW_TRACK_SHARE, mapper.CONTEXT_TRACKS = share, context
-    solver.REFILL_ROUNDS = solver.REFILL_ROUNDS if refill is None else refill
+    mapper.WINDOW_REFILL_ROUNDS = mapper.WINDOW_REFILL_ROUNDS if refill is None else refill
     solver_problem.entry_weights = unseen_weights(unseen)
     rotations.CORE_SHARE = rotations.CORE_SHARE if core is None else core
     pipeline = make_pipeline({'refined_from': 'last_window'})
@@ -83,7 +83,7 @@ def run_one(name, S, frames, points, share, context, seed, unseen='free', core=N
     error, seen = evaluate(refined, S, points)
     tracked = sum(ids.size for ids, _ in frames)
     return dict(sequence=name, share=share, context=context, seed=seed, e3d=error,
-                unseen=unseen, refill=solver.REFILL_ROUNDS,
+                unseen=unseen, refill=mapper.WINDOW_REFILL_ROUNDS,
                 core_share=rotations.CORE_SHARE if np.isfinite(rotations.CORE_SHARE) else 'inf',
                 coverage=float(seen.sum() / tracked), frames_published=len(refined),
                 cpu_seconds=cpu)
@@ -96,7 +96,7 @@ def main(argv=None):
     parser.add_argument('--context', default='0.9,0.5')
     parser.add_argument('--unseen', default='free',
                         help="the data terms of unseen entries: 'free' (shipped), 'filled'")
-    parser.add_argument('--refill', default=str(solver.REFILL_ROUNDS),
+    parser.add_argument('--refill', default=str(mapper.WINDOW_REFILL_ROUNDS),
                         help='refill rounds after each masked solve')
     parser.add_argument('--core', default=str(rotations.CORE_SHARE),
                         help='shares of complete tracks for the rotations (inf: never the core)')
@@ -106,7 +106,7 @@ def main(argv=None):
     kinds = mode.pick(['bending'], ['bending', 'waving', 'articulated'], None)
     F, P = mode.pick((40, 150), (90, 400), None)
     shipped = (windowing.WINDOW_TRACK_SHARE, mapper.CONTEXT_TRACKS, solver_problem.entry_weights,
-               rotations.CORE_SHARE, solver.REFILL_ROUNDS)
+               rotations.CORE_SHARE, mapper.WINDOW_REFILL_ROUNDS)
     settings = [(float(share), float(context), unseen, float(core), int(refill))
                 for share in args.shares.split(',') for context in args.context.split(',')
                 for unseen in args.unseen.split(',') for core in args.core.split(',')
@@ -127,7 +127,7 @@ def main(argv=None):
                                f"{row['coverage']:.3f}, {row['cpu_seconds']:.0f} CPU s")
     finally:
         (windowing.WINDOW_TRACK_SHARE, mapper.CONTEXT_TRACKS, solver_problem.entry_weights,
-         rotations.CORE_SHARE, solver.REFILL_ROUNDS) = shipped
+         rotations.CORE_SHARE, mapper.WINDOW_REFILL_ROUNDS) = shipped
     path = common.write_result(mode, 'track_streams', {
         'rows': rows, 'hazard': HAZARD, 'gap': list(GAP), 'F': F, 'P': P,
         'shipped': {'share': shipped[0], 'context': shipped[1], 'unseen': 'free',
