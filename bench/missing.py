@@ -37,7 +37,10 @@ def solve(W, **params):
     return result, time.perf_counter() - start
 
 
-def back_row():
+def back_data():
+    """The real back, or None without ../shared: ``(W: (2F, P) NaN where not seen, S: (3F, P),
+    visible: (F, P), truth: (F, P) the entries with a truth, core: (P,) the complete tracks,
+    rigid: rigid factorisation's e3D on them)``."""
     root = common.data_root()
     if root is None or not (root / 'russell_back' / 'back.npz').is_file():
         return None
@@ -48,6 +51,15 @@ def back_row():
     truth = visible & np.isfinite(S).reshape(F, 3, P).all(axis=1) & (depth > BACK_MIN_DEPTH)
     core = visible.all(axis=0)
     rigid = e3d(rigid_factorisation(W[:, core])[1], S[:, core], scale=True)
+    return np.where(np.repeat(visible, 2, axis=0), W, np.nan), S, visible, truth, core, rigid
+
+
+def back_row():
+    data = back_data()
+    if data is None:
+        return None
+    W, S, visible, truth, core, rigid = data
+    F, P = visible.shape
     common.log('missing: back, 126 complete tracks')
     alone, t_alone = solve(W[:, core])
     common.log('missing: back, all 245 tracks')

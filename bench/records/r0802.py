@@ -25,9 +25,8 @@ import time
 
 import numpy as np
 
-from bench import common
-from bench.missing import BACK_MIN_DEPTH, NOISE
-from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM, rigid_factorisation, synthetic, WarmStart
+from bench.missing import back_data, NOISE
+from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM, synthetic, WarmStart
 from grass_nrsfm_ros.nrsfm import missing, problem as problem_module, solver
 from grass_nrsfm_ros.nrsfm.stages import rotations
 
@@ -79,15 +78,7 @@ def occlusion(kind, seed, variants):
 
 
 def back(variants):
-    root = common.data_root()
-    with np.load(root / 'russell_back' / 'back.npz') as z:
-        W, S, visible = z['W'].astype(float), z['S'].astype(float), z['visible']
-    F, P = visible.shape
-    depth = S.reshape(F, 3, P)[:, 2]
-    truth = visible & np.isfinite(S).reshape(F, 3, P).all(axis=1) & (depth > BACK_MIN_DEPTH)
-    core = visible.all(axis=0)
-    rigid = e3d(rigid_factorisation(W[:, core])[1], S[:, core], scale=True)
-    W = np.where(np.repeat(visible, 2, axis=0), W, np.nan)
+    W, S, _, truth, core, rigid = back_data()
     cells = [f'rigid(126) {rigid:.4f}']
     for variant in variants:
         result, seconds = solve(W, variant)
