@@ -4,8 +4,9 @@ outputs hold what it prints, read back by a library that did not write them (ros
 The figures for the embedded sequence (bending sheet, orbit, 60 x 3,000): whole sequence e3D
 0.1356 (rigid factorisation 0.3036; the README's accuracy table, row synthetic_bending); live
 0.2210 as tracked on arrival (its first 30 frames before the first model), 0.1033 refined by
-the windows (0.2190 / 0.1826 with mapping_tracks 5,000, before record 0403's revision). From images (40 rendered frames of a textured bending sheet, 320 x 240, tracked
-by DenseTracker at step 5, front end at d55895a: 454 tracks alive in every frame): tracking
+the windows (0.2190 / 0.1826 with mapping_tracks 5,000, before record 0403's revision).
+From images (40 rendered frames of a textured bending sheet, 320 x 240, tracked by
+DenseTracker at step 5, front end at d55895a: 454 tracks alive in every frame): tracking
 error median 0.45 px, p95 1.98 px against the renderer's truth; e3D whole sequence 0.0794
 (0.0988 from the true projections of the same points, rigid factorisation 0.1404), live
 0.1011 as tracked on arrival, 0.0798 refined. The bounds below are those figures + 15 %, the
