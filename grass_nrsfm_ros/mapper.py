@@ -259,10 +259,11 @@ class Mapper:
         window started from the rigid factorisation (a sequence's first), the penalty cap
         WINDOW_BETA_MAX (docs/decisions/0425, 0435)."""
         kwargs = {} if init is None else {'init': subset_init(init, keep)}
-        if not problem.seen.all() and _accepts(solver.fit, 'filled'):
-            kwargs['filled'] = problem.filled if keep is None else problem.filled[:, keep]
-        if not problem.seen.all() and _accepts(solver.fit, 'refill_rounds'):
-            kwargs['refill_rounds'] = WINDOW_REFILL_ROUNDS
+        if not problem.seen.all():
+            if _accepts(solver.fit, 'filled'):
+                kwargs['filled'] = problem.filled if keep is None else problem.filled[:, keep]
+            if _accepts(solver.fit, 'refill_rounds'):
+                kwargs['refill_rounds'] = WINDOW_REFILL_ROUNDS
         if progress is not None and _accepts(solver.fit, 'progress'):
             kwargs['progress'] = progress
         capped = (self.warm_start == 'resume' and problem.n_context) or \

@@ -37,7 +37,7 @@ from grass_nrsfm_ros import params
 from grass_nrsfm_ros.backends import InlineBackend, ProcessBackend
 from grass_nrsfm_ros.mapper import make_mapper, refined_after_of
 from grass_nrsfm_ros.nrsfm.camera import validate_intrinsics, warn_orthographic
-from grass_nrsfm_ros.nrsfm.perspective import low_rank_sign, MIN_RELATIVE_DEPTH
+from grass_nrsfm_ros.nrsfm.perspective import flat_depths, low_rank_sign, MIN_RELATIVE_DEPTH
 from grass_nrsfm_ros.refinement import Refinement
 from grass_nrsfm_ros.shape_tracking import ShapeTracking
 from grass_nrsfm_ros.windowing import FrameError, Windowing
@@ -49,9 +49,6 @@ LATENCY_WINDOW = 300
 RAYS_KEPT = 1000
 #: with K: fewest frames of a sequence's first solved window that decide its depth sign
 SIGN_FRAMES = 10
-#: with K: a window whose relative depths are all below this (normalised units) is flat and
-#: decides no sign (the next window does)
-FLAT_DEPTH = 1e-6
 
 
 def pinhole_points(xyz, rays, scene_depth=1.0):
@@ -205,7 +202,8 @@ class LivePipeline:
 
     def _choose_sign(self, update):
         """The depth sign of ``update``'s sequence, once: from the frames of its first solved
-        window with K that is not flat (:func:`low_rank_sign` on their common tracks)."""
+        window with K whose depths are not flat (:func:`flat_depths`: the next window decides
+        then), by :func:`low_rank_sign` on their common tracks."""
         frames = [(r, self._rays[r.stamp_ns]) for r in update.results
                   if r.stamp_ns in self._rays and self._rays[r.stamp_ns][2] == update.sequence]
         if len(frames) < SIGN_FRAMES:
@@ -219,9 +217,9 @@ class LivePipeline:
         for r, (ids, uv, _) in frames:
             x.append(uv[np.searchsorted(ids, common)].T)
             delta.append(r.xyz[np.searchsorted(r.ids, common), 2])
-        delta = np.stack(delta)
-        if np.abs(delta).max() >= FLAT_DEPTH:
-            self._signs[update.sequence] = low_rank_sign(np.vstack(x), delta)
+        x, delta = np.vstack(x), np.stack(delta)
+        if not flat_depths(delta, x):
+            self._signs[update.sequence] = low_rank_sign(x, delta)
 
 
 def make_pipeline(config, solver_factory=None, *, mapping='inline', notify=None, on_exit=None,

@@ -19,7 +19,7 @@ import threading
 
 import numpy as np
 
-from grass_nrsfm_ros.mapper import FrameResult
+from grass_nrsfm_ros.mapper import DEPTH_FLIP, FrameResult
 from grass_nrsfm_ros.nrsfm.measurement import centre, InvalidInputError
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation, rigid_world_shape
 from grass_nrsfm_ros.nrsfm.tracking import fit_subset, rigid_model, Tracker
@@ -96,8 +96,7 @@ def oriented_by(model, frames, depth_sign):
 
 def mirrored(model):
     """``model`` with its depth mirrored (camera-frame z negated, x and y kept)."""
-    flip = np.diag([1.0, 1.0, -1.0])
-    return replace(model, mean=flip @ model.mean, R=flip @ model.R @ flip)
+    return replace(model, mean=DEPTH_FLIP @ model.mean, R=DEPTH_FLIP @ model.R @ DEPTH_FLIP)
 
 
 class ShapeTracking:

@@ -92,15 +92,14 @@ def core_oracle(drifting):
 
 def unseen_problem(problem, unseen):
     """``problem`` with the entries ``unseen: (F, P)`` made unseen and completed again."""
-    mask = (problem.mask if problem.weights is not None else
+    mask = (problem.mask if problem.mask is not None else
             np.ones((problem.F, problem.P), bool)) & ~unseen
-    W, completion = complete(np.where(np.repeat(mask, 2, axis=0), problem.W, 0.0), mask)
+    W, completion = complete(problem.W, mask)
     weights = np.repeat(mask, 2, axis=0).astype(float)
     translation = W.mean(axis=1, keepdims=True)
     Wn = (W - translation) / problem.scale
-    seen = {'seen': mask} if hasattr(problem, 'seen') else {}
     return replace(problem, W=W, Wn=Wn, translation=translation, weights=weights,
-                   completion=completion, **seen)
+                   completion=completion, mask=mask)
 
 
 def entry_outliers(problem, tracks):
@@ -123,8 +122,8 @@ def imputed_problem(problem, unseen):
     """``problem`` with the entries ``unseen: (F, P)`` replaced by their completion from the
     others and then taken as seen (weights as before)."""
     filled = unseen_problem(problem, unseen)
-    seen = {'seen': problem.seen} if hasattr(problem, 'seen') else {}
-    return replace(filled, weights=problem.weights, completion=problem.completion, **seen)
+    return replace(filled, weights=problem.weights, completion=problem.completion,
+                   mask=problem.mask)
 
 
 def robust_variant(mode, drifting):

@@ -165,14 +165,15 @@ def fill_unseen(W, visible=None, random_state=0):
     W, mask = observation_mask(W, visible)
     if mask is None:
         return W, np.ones((W.shape[0] // 2, W.shape[1]), dtype=bool), None
-    filled, model = complete(np.where(np.repeat(mask, 2, axis=0), W, 0.0), mask, random_state)
+    filled, model = complete(W, mask, random_state)
     return filled, mask, model
 
 
 def complete(W, mask, random_state=0):
     """``(W_filled: (2F, P), model)``: ``W`` with the entries not seen in ``mask: (F, P)``
     filled by :func:`_impute` with the model :func:`completion_model` chooses (as text, e.g.
-    'rank 3', 'soft 0.01')."""
+    'rank 3', 'soft 0.01'); what ``W`` holds at those entries (NaN, anything) is not read."""
     observed = np.repeat(mask, 2, axis=0)
+    W = np.where(observed, W, 0.0)
     model = completion_model(W, observed, random_state)
     return _impute(W, observed, model), f'{model[0]} {model[1]:g}'

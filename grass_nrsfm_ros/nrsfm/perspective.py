@@ -110,16 +110,20 @@ def agreeing_signs(delta, previous):
     return np.where(np.einsum('fp,fp->f', delta, previous) >= 0.0, 1.0, -1.0)
 
 
+def flat_depths(delta, x):
+    """True where relative depths ``delta: (F, P)`` have no size: their RMS below FLAT_DEPTHS
+    of the normalised tracks' ``x: (2F, P)`` RMS spread about each frame's centroid (a solve
+    that found no depth)."""
+    spread = np.sqrt(np.mean((x - x.mean(axis=1, keepdims=True)) ** 2))
+    return bool(np.linalg.norm(delta) <= FLAT_DEPTHS * spread * np.sqrt(delta.size))
+
+
 def depth_change(new, previous, x):
     """``||new - previous|| / ||new||`` of relative depths ``(F, P)``; inf where ``new`` is
-    flat (RMS below FLAT_DEPTHS of the normalised tracks' ``x: (2F, P)`` RMS spread about
-    each frame's centroid): such a solve found no depth, and its ratio would be noise over
-    nothing."""
-    spread = np.sqrt(np.mean((x - x.mean(axis=1, keepdims=True)) ** 2))
-    size = np.linalg.norm(new)
-    if size <= FLAT_DEPTHS * spread * np.sqrt(new.size):
+    flat (:func:`flat_depths`): its ratio would be noise over nothing."""
+    if flat_depths(new, x):
         return float('inf')
-    return float(np.linalg.norm(new - previous) / size)
+    return float(np.linalg.norm(new - previous) / np.linalg.norm(new))
 
 
 def perspective_residual(S, W_in, x, delta):

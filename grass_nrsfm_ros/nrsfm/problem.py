@@ -106,8 +106,8 @@ class Problem:
     """A checked problem: ``W: (2F, P)`` tracks as given, ``Wn: (2F, P)`` centred and divided by
     ``scale``, ``translation: (2F, 1)`` the row means; ``init`` the warm start (``given``: the
     caller passed one), ``known: (F,)``, ``groups: (P,)`` dense labels or None; ``weights:
-    (2F, P)`` the data term's weights or None (every entry 1); ``seen: (F, P)`` the entries
-    observed (None: all). Where entries are not seen (weight 0), ``W`` holds them completed
+    (2F, P)`` the data term's weights or None (every entry 1); ``mask: (F, P)`` bool, the
+    entries seen (None: all). Where entries are not seen (weight 0), ``W`` holds them completed
     (:func:`.missing.complete`, or handed over: 'given', the model named by ``completion``)
     and ``translation`` is the completed rows' mean."""
     W: np.ndarray
@@ -120,7 +120,7 @@ class Problem:
     given: bool
     weights: np.ndarray = None
     completion: str = None
-    seen: np.ndarray = None
+    mask: np.ndarray = None
 
     @classmethod
     def from_tracks(cls, W, init=None, visible=None, random_state=0, filled=None):
@@ -135,11 +135,11 @@ class Problem:
             W = validate_tracks(W, min_frames=3, min_points=4)
         else:
             check_mask(mask, min_frames=3, min_points=4)
-            seen = np.repeat(mask, 2, axis=0)
             if filled is None:
-                W, completion = complete(np.where(seen, W, 0.0), mask, random_state)
+                W, completion = complete(W, mask, random_state)
             else:
-                W, completion = np.where(seen, W, checked_filled(filled, W.shape)), 'given'
+                W, completion = np.where(np.repeat(mask, 2, axis=0), W,
+                                         checked_filled(filled, W.shape)), 'given'
             weights = entry_weights(mask)
         given = init is not None
         init = init if given else WarmStart()
@@ -151,11 +151,6 @@ class Problem:
         Wn /= scale                                     # centred, unit RMS
         return cls(W, Wn, translation, scale, init, known, groups, given, weights, completion,
                    mask)
-
-    @property
-    def mask(self):
-        """``(F, P)`` bool: the entries seen (None: all)."""
-        return self.seen
 
     def weighted(self, track_weights):
         """The problem with each track's weights multiplied by ``track_weights: (P,)``."""
@@ -182,9 +177,9 @@ class Problem:
         S = None if self.init.S is None else np.asarray(self.init.S)[:, keep]
         groups = None if self.groups is None else dense_labels(self.groups[keep])
         weights = None if self.weights is None else self.weights[:, keep]
-        seen = None if self.seen is None else self.seen[:, keep]
+        mask = None if self.mask is None else self.mask[:, keep]
         return replace(self, W=W, Wn=centre(W)[0] / self.scale, init=replace(self.init, S=S),
-                       groups=groups, weights=weights, seen=seen)
+                       groups=groups, weights=weights, mask=mask)
 
     def with_rotations(self, R):
         """The problem solved afresh with the rotations ``R: (F, 3, 3)`` given for every
