@@ -49,18 +49,30 @@ def check_tracks(P, random_state):
 
 
 def check(S, W, params):
-    """The :class:`Check` of ``S: (3F, P)`` on the tracks ``W: (2F, P)`` (all of them when
-    'always')."""
-    mode, P = params['inextensible'], W.shape[1]
-    idx = check_tracks(P, params['random_state']) if mode == 'auto' else np.arange(P)
+    """The :class:`Check` of ``S: (3F, P)`` on the tracks ``W: (2F, P)`` under 'auto'; None
+    under 'always' (nothing to decide: :func:`run` reports its own variations)."""
+    if params['inextensible'] == 'always':
+        return None
+    idx = check_tracks(W.shape[1], params['random_state'])
     _, info = refine_depth(S[:, idx], neighbour_edges(W[:, idx]))
+    return _check_of(info, idx.size, used=None)
+
+
+def _check_of(info, tracks, used):
+    """The :class:`Check` of a :func:`refine_depth` ``info``; ``used`` None: by the ratio."""
     before, after = info['length_variation_before'], info['length_variation_after']
     ratio = after / before if before > 0 else 1.0
-    return Check(before, after, ratio, idx.size, mode == 'always' or ratio < INEXTENSIBLE_RATIO)
+    return Check(before, after, ratio, tracks, ratio < INEXTENSIBLE_RATIO if used is None
+                 else used)
 
 
 def run(S, R, W, params, result, report):
-    """``S: (3F, P)`` with inextensible depths when the :class:`Check` ``result`` says so."""
+    """``S: (3F, P)`` with inextensible depths when the :class:`Check` ``result`` says so
+    (always when None, 'always')."""
+    refined = None
+    if result is None:
+        refined, info = refine_depth(S, neighbour_edges(W), R=R)
+        result = _check_of(info, W.shape[1], used=True)
     c = result
     report.inextensible = c.used
     report.notes.append(
@@ -69,4 +81,4 @@ def run(S, R, W, params, result, report):
         f'{c.ratio:.2f}, threshold {INEXTENSIBLE_RATIO:g})')
     if not c.used:
         return S
-    return refine_depth(S, neighbour_edges(W), R=R)[0]
+    return refine_depth(S, neighbour_edges(W), R=R)[0] if refined is None else refined
