@@ -13,14 +13,18 @@
   frames;
 * the node (``--node``): the slow face at 30 Hz over DDS into the node as shipped, optionally
   with the other core busy: frames back, latency from sending a frame's tracks to receiving
-  its cloud (p50 / p95 / max), e3D of the received clouds on all frames.
+  its cloud (p50 / p95 / max), e3D of the received clouds on all frames; ``--frames`` for a
+  longer face (3600: 2 minutes at 30 Hz);
+* ``--offline``: the same pipeline offline on the node run's input (``--points``,
+  ``--frames``), the e3D the node's is compared with, added to that run's entry.
 
     python -m bench --only live [--full]
-    python -m bench.live --node [--points 10000] [--busy] [--mapping process]
+    python -m bench.live --node [--points 10000] [--frames 300] [--busy] [--mapping process]
+    python -m bench.live --offline --points 30000 --frames 3600
 
 Results: ``bench/results/live.json`` (suite) and ``live_node.json`` (``--node``; keyed by
-points, ``_busy``, ``_<mapping>`` when ``--mapping`` is given, and ``_<kernel>`` where
-OPENBLAS_CORETYPE sets the BLAS kernel).
+points, ``x<frames>f`` unless 300, ``_busy``, ``_<mapping>`` when ``--mapping`` is given, and
+``_<kernel>`` where OPENBLAS_CORETYPE sets the BLAS kernel).
 """
 import argparse
 import json
@@ -55,11 +59,14 @@ BASELINE_WARM_START = 'model'
 NODE_LAUNCH = 'import sys; from grass_nrsfm_ros.node import main; sys.exit(main())'
 
 
-def slow_face(P):
-    """``(W, S)`` of a 300-frame dense face whose head turn spans the whole sequence (pixels:
-    the face's mm), or None without the face model."""
+NODE_RESULTS = common.RESULTS / 'live_node.json'
+
+
+def slow_face(P, F=300):
+    """``(W, S)`` of an ``F``-frame dense face whose head turn spans the whole sequence
+    (pixels: the face's mm), or None without the face model."""
     try:
-        seq = make_face_sequence(n_frames=300, n_points=P, seed=0)
+        seq = make_face_sequence(n_frames=F, n_points=P, seed=0)
     except FileNotFoundError:
         return None
     return seq.W, seq.S
@@ -216,8 +223,9 @@ def busy_loop(stop):
         x = (x + 1.0) % 7.0
 
 
-def node_run(points=10_000, rate=30.0, busy=False, extra_args=()):
-    """Feed the slow face at ``rate`` Hz into the node; return the figures."""
+def node_run(points=10_000, rate=30.0, busy=False, extra_args=(), frames=300):
+    """Feed the slow face (``frames`` frames) at ``rate`` Hz into the node; return the
+    figures."""
     sys.path.insert(0, str(common.REPO / 'test'))
     tmp = Path(tempfile.mkdtemp(prefix='grass_live_'))
     os.environ.update({'ROS_DOMAIN_ID': str(random.randint(0, 101)),
@@ -228,7 +236,7 @@ def node_run(points=10_000, rate=30.0, busy=False, extra_args=()):
     import rosutil
     from std_msgs.msg import Header
 
-    W, S = slow_face(points)
+    W, S = slow_face(points, frames)
     F = W.shape[0] // 2
     ids = np.arange(points, dtype=np.uint32)
     t0 = 1_700_000_000_000_000_000
@@ -272,6 +280,29 @@ def node_run(points=10_000, rate=30.0, busy=False, extra_args=()):
     return figures
 
 
+def offline_reference(points, frames):
+    """e3D of the live pipeline's ``points`` offline (every window solved inline as it
+    closes) on the slow face the node run of ``points`` tracks and ``frames`` frames is fed,
+    with the mapping CPU seconds per window."""
+    W, S = slow_face(points, frames)
+    results, _, _, cpu = run_pipeline(W, defaults()['mapping_tracks'])
+    figures = {'offline_e3d_points': e3d(stacked(results), S),
+               'offline_cpu_per_window_s': float(np.mean(cpu[1:] or cpu)),
+               'offline_windows': len(cpu), 'offline_git': common.environment().get('git')}
+    common.log(json.dumps(figures))
+    return figures
+
+
+def stored(key):
+    """The entry ``key`` of live_node.json ({} when none)."""
+    return json.loads(NODE_RESULTS.read_text()).get(key, {}) if NODE_RESULTS.exists() else {}
+
+
+def run_key(points, frames, busy=False, suffix=''):
+    """The live_node.json key of a node run: ``10000``, ``30000x3600f``, ``10000_busy``..."""
+    return f"{points}{'' if frames == 300 else f'x{frames}f'}{'_busy' if busy else ''}{suffix}"
+
+
 def median_run(runs):
     """The run of median p95 latency among ``runs`` (figures dicts), with every run's
     p50 / p95 / max latency under ``runs``."""
@@ -292,7 +323,17 @@ def main(argv=None):
                         '10000_busy_process)')
     parser.add_argument('--repeat', type=int, default=1,
                         help='runs of each mapping (in turn); the median p95 run is kept')
+    parser.add_argument('--frames', type=int, default=300,
+                        help='frames of the slow face (3600: 2 minutes at 30 Hz)')
+    parser.add_argument('--offline', action='store_true',
+                        help="add the same pipeline offline on the same input to the run's "
+                        'entry (its e3D the ratio is taken against)')
     args = parser.parse_args(argv)
+    if args.offline:
+        key = run_key(args.points, args.frames)
+        common.merge_result(NODE_RESULTS, key, {**stored(key),
+                                                **offline_reference(args.points, args.frames)})
+        return 0
     if not args.node:
         from . import __main__
         return __main__.main(['--only', 'live'])
@@ -303,16 +344,18 @@ def main(argv=None):
     for _ in range(args.repeat):
         for mapping in mappings:
             figures = node_run(args.points, args.rate, args.busy,
-                               extra_args=('-p', f'mapping:={mapping}'))
+                               extra_args=('-p', f'mapping:={mapping}'), frames=args.frames)
             runs[mapping].append(dict(figures, mapping=mapping))
     coretype = os.environ.get('OPENBLAS_CORETYPE', '').lower()
     kernel = f'_{coretype}' if coretype else ''
     for mapping, done in runs.items():
         suffix = ('' if args.mapping is None else f'_{mapping}') + kernel
         figures = median_run(done) if len(done) > 1 else done[0]
-        common.merge_result(common.RESULTS / 'live_node.json',
-                            f"{args.points}{'_busy' if args.busy else ''}{suffix}",
-                            {'environment': common.environment(), **common.jsonable(figures)})
+        key = run_key(args.points, args.frames, args.busy, suffix)
+        offline = {k: v for k, v in stored(key).items() if k.startswith('offline_')}
+        common.merge_result(NODE_RESULTS, key,
+                            {'environment': common.environment(), **common.jsonable(figures),
+                             **offline})
     return 0
 
 

@@ -160,14 +160,21 @@ def live_table(doc):
             lines.append(f'| {r["sequence"]} | {parts[0]} | {parts[1]} |')
     node = load(common.RESULTS, 'live_node') or {}
     if node:
-        lines += ['', 'The node over DDS, 300 frames of the slow face at 30 Hz '
-                  '(`python -m bench.live --node`):', '',
-                  '| run | frames back | latency ms p50 / p95 / max | e3D | first model after | '
-                  'model age at the end | commit |', '|---|---|---|---|---|---|---|']
+        lines += ['', 'The node over DDS, the slow face at 30 Hz (`python -m bench.live --node`; '
+                  'the same pipeline offline on the same input: `--offline`, its `points`):', '',
+                  '| run | frames back | latency ms p50 / p95 / max | e3D | offline e3D '
+                  '(node / offline) | first model after | model age at the end | commit |',
+                  '|---|---|---|---|---|---|---|---|']
         for key, r in sorted(node.items()):
+            if 'frames' not in r:
+                continue                        # an offline reference without its node run
+            offline = r.get('offline_e3d_points')
+            versus = '-' if offline is None else \
+                f'{fmt(offline)} ({fmt(r["e3d_received"] / offline, 3)})'
             lines.append(f'| {key} tracks | {r["frames_received"]} / {r["frames"]} | '
                          f'{fmt(r["latency_ms_p50"], 1)} / {fmt(r["latency_ms_p95"], 1)} / '
                          f'{fmt(r["latency_ms_max"], 1)} | {fmt(r["e3d_received"])} | '
+                         f'{versus} | '
                          f'{r["diagnostics"].get("first model after frames", "-")} frames | '
                          f'{r["diagnostics"].get("model age frames") or "-"} frames | '
                          f'{r.get("environment", {}).get("git") or "-"} |')
