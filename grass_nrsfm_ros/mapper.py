@@ -29,7 +29,6 @@ from grass_nrsfm_ros.nrsfm.missing import fill_unseen
 from grass_nrsfm_ros.nrsfm.rotation import (choose_rank, DEFAULT_CANDIDATES, max_rank,
                                             normalised_svd, rigid_factorisation,
                                             rotations_from_start)
-from grass_nrsfm_ros.nrsfm.schema import INEXTENSIBLE_MIN_POINTS
 from grass_nrsfm_ros.nrsfm.solver import one_blas_thread
 from grass_nrsfm_ros.nrsfm.tracking import build_model
 from grass_nrsfm_ros.windowing import common_ids, window_matrix
@@ -182,14 +181,12 @@ class Mapper:
         self.previous = None            # Solution of the last solved window
         self._rotation_check = None     # (sequence, method, stamps) of the last full check
         self._resumed_rank = None       # Dai's rank of the rotations a resumed start gave
-        self._inextensible_used = None  # the sequence whose solve used inextensible depths
         self.started_from = None        # the last solve's start: 'rigid', 'model', 'resumed'
         self._solves = (None, {})       # (sequence, {stamp: solves of that frame})
 
     def reset(self):
         """Forget the previous solution and the rotation check (a new sequence)."""
         self.previous, self._rotation_check, self._solves = None, None, (None, {})
-        self._inextensible_used = None
 
     def solve(self, window, progress=None):
         """Solve ``window`` with its context: an Update 'solved' (or 'released', see
@@ -218,7 +215,7 @@ class Mapper:
         Wc, _ = centre(filled)
         init = self._start_for(problem)
         keep = self._mapped_tracks(problem.ids, first=self.started_from == 'rigid')
-        solver = self._holding_inextensible(self.solver_factory(), problem, keep)
+        solver = self.solver_factory()
         result = solver.fit(problem.W if keep is None else problem.W[:, keep],
                             **self._fit_kwargs(solver, problem, init, keep, progress))
         S = np.array(result.S, dtype=np.float64)
@@ -236,8 +233,6 @@ class Mapper:
             S, R = flip_depth(S), DEPTH_FLIP @ R @ DEPTH_FLIP
             Z = as_frames(S, 3)[:, 2, :]
         report = getattr(result, 'report', None)
-        if getattr(report, 'inextensible', False):
-            self._inextensible_used = problem.sequence
         if getattr(report, 'rotation_checked', False):
             full = problem.n_context >= self.context_frames
             self._rotation_check = (problem.sequence, report.rotation_method, problem.stamps) \
@@ -255,15 +250,6 @@ class Mapper:
             p.S, p.R = flip_depth(p.S), DEPTH_FLIP @ p.R @ DEPTH_FLIP
             Z = -Z
         return problem, as_frames(Wc, 2), Z, flipped, seen
-
-    def _holding_inextensible(self, solver, problem, keep):
-        """``solver``, set to 'always' use the inextensible depths (no check) in a resumed
-        window of a sequence whose solve used them under 'auto' (docs/decisions/0438)."""
-        held = (self.started_from == 'resumed' and self._inextensible_used == problem.sequence
-                and hasattr(solver, 'set_params')
-                and solver.get_params().get('inextensible') == 'auto'
-                and (problem.ids.size if keep is None else keep.size) >= INEXTENSIBLE_MIN_POINTS)
-        return solver.set_params(inextensible='always') if held else solver
 
     def _fit_kwargs(self, solver, problem, init, keep, progress):
         """The keywords of this solve's ``fit``: the start, the window's completion (the

@@ -230,24 +230,3 @@ def test_a_window_with_unseen_entries_is_completed_once(monkeypatch):
     problem = mapper._problem(window)
     seen = np.repeat(problem.seen, 2, axis=0)
     assert not seen.all() and np.array_equal(problem.filled[seen], problem.W[seen])
-
-
-def test_inextensible_depths_once_used_are_held_without_the_check(monkeypatch):
-    """Once a solve of a sequence used the inextensible depths under 'auto', its resumed
-    windows run them as 'always' (no check, docs/decisions/0438): the shapes equal those of
-    windows that check again and decide the same."""
-    W, _, ids = bending_sheet(F=60, P=300, bend=0.3)
-    windows = windows_of(W, ids)
-    held, checked = make_mapper({}), make_mapper({})
-    monkeypatch.setattr(checked, '_holding_inextensible', lambda solver, *_: solver)
-    notes = []
-    for window in windows:
-        a, b = held.solve(window), checked.solve(window)
-        notes.append([n for n in held.previous.report.notes if n.startswith('inextensible')])
-        assert b.kind == a.kind == 'solved'
-        np.testing.assert_allclose(held.previous.S, checked.previous.S, atol=1e-9)
-        assert held.previous.report.inextensible == checked.previous.report.inextensible
-    used = [i for i, n in enumerate(notes) if n and ' used (auto)' in n[0]]
-    assert used and used[0] + 1 < len(windows), notes
-    later = notes[used[0] + 1:]
-    assert later and all(' used (always)' in n[0] for n in later), notes
