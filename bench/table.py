@@ -344,7 +344,10 @@ def missing_table(doc):
                          f"rigid on the complete 126: {fmt(r['rigid_complete'])} (ours on them "
                          f"{fmt(r['ours_complete'])}) | {fmt(r['ratio'], 3)} ({r['bar']}); "
                          'rotations from all tracks completed '
-                         f"{fmt(r['ratio_rotations_completed'], 3)} |")
+                         f"{fmt(r['ratio_rotations_completed'], 3)}; oracle rotations "
+                         f"{fmt(r['ratio_oracle_rotations'], 3)}; against rigid on all "
+                         f"{r['P']} completed ({fmt(r['rigid_all'])}): "
+                         f"{fmt(r['ours_all_over_rigid_all'], 3)} |")
         elif r['case'] == 'occlusion':
             lines.append(f"| occlusion blocks | {r['sequence']} s{r['seed']} | {size} | "
                          f"{fmt(r['unseen'], 3)} | {fmt(r['masked'])} (seen "
@@ -383,7 +386,8 @@ SECTIONS = (('accuracy', 'Accuracy', 'e3D; "A": Akhter\'s metric, the one of the
             ('perspective', 'Perspective', 'The projective-depth iteration; e3D with a '
              'per-frame scale (`python -m bench.perspective`)', perspective_table),
             ('missing', 'Missing data and tracker errors', 'Unseen entries and drifting '
-             'tracks in the offline solver; record 0800, 0801 (`python -m bench.missing`)',
+             'tracks in the offline solver; record 0800, 0801, 0807 '
+             '(`python -m bench.missing`)',
              missing_table),
             ('sheets', 'Sheets', 'e3D and its ratio to rigid factorisation per option '
              '(`python -m bench.sheets`)', sheets_table),
