@@ -1,0 +1,212 @@
+"""Maximum-depth heuristic (MDH) for sheets seen through a pinhole (Chhatkuli et al., TPAMI 2018).
+
+An inextensible surface keeps the geodesic distance ``d_e`` between neighbouring tracks
+``e = (i, j)``; the straight 3D distance never exceeds it. Along the rays ``q = (x, y, 1)`` of
+the normalised tracks, MDH maximises the sum of all depths subject to
+
+    ``|| Z_i^f q_i^f - Z_j^f q_j^f || <= d_e``   for every frame ``f`` and edge ``e``,
+
+``d_e >= 0`` shared by the frames and normalised (``sum_e d_e = 1``). Pushed as far as the
+edges allow, a sheet is stretched taut between its rays, which fixes its depths up to the one
+global scale. The second-order cones are solved as a linear programme (scipy's HiGHS) by
+cutting planes: each cone ``||v|| <= d`` is replaced by tangent planes ``a . v <= d`` (``|a| =
+1``), first along the edge's image direction, the optical axis and their diagonals, then, for
+every cone the last solution violates by more than ``tol`` of its ``d``, along that solution's
+``v``; repeated until none is (cuts that have gone slack are dropped between rounds; HiGHS's
+interior-point method, 8 times faster than its simplex here).
+
+The edges are the neighbour graph of :func:`.inextensible.neighbour_edges`.
+:class:`MaxDepthNRSfM` (``fit(W) -> MaxDepthResult`` with ``S``) solves the LP on at most
+``max_tracks`` tracks spread over the sheet (:func:`anchor_tracks`) and gives the others the
+depth of the plane through their nearest anchors in each frame (:func:`interpolated_depths`):
+the LP's cost grows faster than its size (10 x 90: 6 s, 40 x 100: 50-75 s CPU).
+
+Orthographic tracks have parallel rays: the depths are then unbounded (any depth translation
+is feasible), so MDH is for pinhole tracks only.
+
+Shapes: ``W: (2F, P)`` normalised tracks (rows ``2f, 2f+1``: x, y), ``Z: (F, P)`` depths,
+``S: (3F, P)`` camera frame, edges ``i, j: (E,)``.
+"""
+from dataclasses import dataclass, field
+import time
+
+import numpy as np
+from scipy.optimize import linprog
+import scipy.sparse as sp
+from sklearn.neighbors import NearestNeighbors
+
+from .inextensible import neighbour_edges, trajectory_embedding
+from .measurement import as_frames, from_frames, InvalidInputError, validate_tracks
+
+#: neighbours per track in the edge graph
+NEIGHBOURS = 8
+#: a cone counts as met when ||v|| <= (1 + TOL) d
+TOL = 1e-2
+#: a cut is dropped once its slack exceeds this fraction of its terms' size (inactive)
+PRUNE = 0.05
+#: cutting-plane rounds at most
+MAX_CUTS = 30
+#: tracks the LP solves (the rest interpolated)
+MAX_TRACKS = 100
+
+
+def _rays(W):
+    """``(F, P, 3)`` rays ``(x, y, 1)`` of normalised tracks ``W: (2F, P)``."""
+    xy = as_frames(W, 2).transpose(0, 2, 1)
+    return np.concatenate([xy, np.ones(xy.shape[:2] + (1,))], axis=-1)
+
+
+def _initial_directions(q, i, j):
+    """``(F, E, m, 3)`` unit tangent directions of each cone: +- the edge's image direction
+    (lateral), +- the optical axis, and their four diagonals."""
+    u = q[:, i, :2] - q[:, j, :2]                                       # (F, E, 2)
+    u /= np.maximum(np.linalg.norm(u, axis=-1, keepdims=True), 1e-300)
+    lateral = np.concatenate([u, np.zeros(u.shape[:2] + (1,))], axis=-1)
+    axis = np.broadcast_to([0.0, 0.0, 1.0], lateral.shape)
+    dirs = [s * lateral + t * axis for s, t in
+            ((1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1))]
+    dirs = np.stack(dirs, axis=2)
+    return dirs / np.linalg.norm(dirs, axis=-1, keepdims=True)
+
+
+def _cut_rows(a, q, i, j, frames, edges, P, E):
+    """Sparse rows ``a . (Z_i q_i - Z_j q_j) - d_e <= 0`` for cones ``(frames, edges)``
+    (``(n,)`` each) with directions ``a: (n, 3)``; the variables are ``Z: (F P)`` then
+    ``d: (E)``."""
+    n = a.shape[0]
+    ii, jj = i[edges], j[edges]
+    ci = np.einsum('nk,nk->n', a, q[frames, ii])
+    cj = -np.einsum('nk,nk->n', a, q[frames, jj])
+    rows = np.repeat(np.arange(n), 3)
+    cols = np.stack([frames * P + ii, frames * P + jj, q.shape[0] * P + edges], 1).ravel()
+    vals = np.stack([ci, cj, -np.ones(n)], 1).ravel()
+    return sp.csr_matrix((vals, (rows, cols)), shape=(n, q.shape[0] * P + E))
+
+
+def max_depth(W, edges=None, *, k=NEIGHBOURS, tol=TOL, max_cuts=MAX_CUTS):
+    """MDH depths of the normalised tracks ``W: (2F, P)`` over ``edges = (i, j)`` (default:
+    :func:`.inextensible.neighbour_edges` with ``k``). Returns ``(Z: (F, P), d: (E,), info)``
+    with ``sum(d) = 1``; info: edges, cutting rounds, cuts, the largest relative violation
+    left and the LP's seconds."""
+    x = validate_tracks(W, min_frames=2, min_points=4)
+    i, j = edges if edges is not None else neighbour_edges(x, k)
+    i, j = np.asarray(i, dtype=np.intp), np.asarray(j, dtype=np.intp)
+    q = _rays(x)
+    F, P, _ = q.shape
+    E = i.size
+    cost = np.r_[-np.ones(F * P), np.zeros(E)] / (F * P)
+    A_eq = sp.csr_matrix(np.r_[np.zeros(F * P), np.ones(E)][None])
+    dirs = _initial_directions(q, i, j)
+    ff, ee = np.meshgrid(np.arange(F), np.arange(E), indexing='ij')
+    m = dirs.shape[2]
+    blocks = [_cut_rows(dirs.reshape(-1, 3), q, i, j, np.repeat(ff.ravel(), m),
+                        np.repeat(ee.ravel(), m), P, E)]
+    t0 = time.process_time()
+    worst, rounds, cuts = np.inf, 0, blocks[0].shape[0]
+    for rounds in range(1, max_cuts + 1):
+        A = sp.vstack(blocks).tocsr()
+        res = linprog(cost, A_ub=A, b_ub=np.zeros(A.shape[0]), A_eq=A_eq, b_eq=[1.0],
+                      bounds=(0, None), method='highs-ipm')
+        if res.status != 0:
+            raise RuntimeError(f'max_depth: the LP failed ({res.message})')
+        Z = res.x[:F * P].reshape(F, P)
+        d = res.x[F * P:]
+        v = Z[:, i, None] * q[:, i] - Z[:, j, None] * q[:, j]          # (F, E, 3)
+        norm = np.linalg.norm(v, axis=-1)
+        excess = norm - (1 + tol) * d[None]
+        worst = float((norm / np.maximum(d[None], 1e-300) - 1).max())
+        bad_f, bad_e = np.nonzero(excess > 0)
+        if bad_f.size == 0:
+            break
+        a = v[bad_f, bad_e] / norm[bad_f, bad_e, None]
+        slack = -(A @ res.x)
+        blocks = [A[slack <= PRUNE * np.abs(A).multiply(np.abs(res.x)[None]).sum(1).A1],
+                  _cut_rows(a, q, i, j, bad_f, bad_e, P, E)]
+        cuts += bad_f.size
+    info = {'edges': int(E), 'rounds': rounds, 'cuts': int(cuts),
+            'violation': worst, 'seconds_cpu': time.process_time() - t0}
+    return Z, d, info
+
+
+def shapes(W, Z):
+    """``S: (3F, P)`` camera frame: ``Z (x, y, 1)`` of normalised tracks ``W: (2F, P)`` and
+    depths ``Z: (F, P)``."""
+    return from_frames((_rays(W) * Z[..., None]).transpose(0, 2, 1))
+
+
+def anchor_tracks(W, n):
+    """``(n,)`` indices of tracks of ``W: (2F, P)`` spread over the surface: farthest-point
+    sampling in the trajectory embedding (:func:`.inextensible.trajectory_embedding`), from
+    the track nearest the centroid."""
+    X = trajectory_embedding(W)
+    P = X.shape[0]
+    if n >= P:
+        return np.arange(P)
+    chosen = np.empty(n, dtype=np.intp)
+    chosen[0] = np.argmin(np.linalg.norm(X - X.mean(0), axis=1))
+    dist = np.linalg.norm(X - X[chosen[0]], axis=1)
+    for m in range(1, n):
+        chosen[m] = np.argmax(dist)
+        dist = np.minimum(dist, np.linalg.norm(X - X[chosen[m]], axis=1))
+    return np.sort(chosen)
+
+
+def interpolated_depths(W, anchors, Z_anchor, k=NEIGHBOURS):
+    """``Z: (F, P)`` for every track of ``W: (2F, P)`` from the depths ``Z_anchor: (F, n)``
+    of the tracks ``anchors: (n,)``: per frame, the least-squares plane ``Z = a + b . x``
+    through its ``k`` nearest anchors (trajectory embedding) evaluated at its image point."""
+    X = trajectory_embedding(W)
+    k = min(k, anchors.size)
+    _, near = NearestNeighbors(n_neighbors=k).fit(X[anchors]).kneighbors(X)   # (P, k)
+    xy = as_frames(W, 2).transpose(0, 2, 1)                                   # (F, P, 2)
+    local = xy[:, anchors[near], :] - xy[:, :, None, :]                       # (F, P, k, 2)
+    A = np.concatenate([np.ones(local.shape[:3] + (1,)), local], axis=-1)
+    normal = np.einsum('fpki,fpkj->fpij', A, A)
+    normal += 1e-9 * np.trace(normal, axis1=2, axis2=3)[..., None, None] * np.eye(3)
+    rhs = np.einsum('fpki,fpk->fpi', A, Z_anchor[:, near])
+    Z = np.linalg.solve(normal, rhs[..., None])[..., 0, 0]
+    Z[:, anchors] = Z_anchor
+    return Z
+
+
+@dataclass
+class MaxDepthResult:
+    """``S: (3F, P)`` camera frame (projects onto the tracks; mean depth 1 over the sequence),
+    ``Z: (F, P)`` its depths, ``anchors``: the tracks the LP solved, ``info``: see
+    :func:`max_depth`."""
+    S: np.ndarray
+    Z: np.ndarray
+    anchors: np.ndarray
+    info: dict = field(default_factory=dict)
+
+
+class MaxDepthNRSfM:
+    """MDH reconstruction of normalised pinhole tracks: ``fit(W: (2F, P)) ->``
+    :class:`MaxDepthResult`. ``neighbours``: edges per track; ``max_tracks``: the LP runs on
+    at most this many tracks (:func:`anchor_tracks`), the others' depths are interpolated
+    (:func:`interpolated_depths`); ``tol``: the cones' relative tolerance."""
+
+    def __init__(self, neighbours=NEIGHBOURS, max_tracks=MAX_TRACKS, tol=TOL):
+        self.neighbours = neighbours
+        self.max_tracks = max_tracks
+        self.tol = tol
+
+    def _checked(self):
+        for name, low in (('neighbours', 2), ('max_tracks', 4)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or \
+                    value < low:
+                raise InvalidInputError(f'{name}={value!r}: expected an int >= {low}')
+        if not (isinstance(self.tol, (int, float)) and 0 < self.tol < 1):
+            raise InvalidInputError(f'tol={self.tol!r}: expected a number in (0, 1)')
+
+    def fit(self, W):
+        """Reconstruct the normalised (complete) tracks ``W: (2F, P)``."""
+        self._checked()
+        x = validate_tracks(W, min_frames=2, min_points=4)
+        anchors = anchor_tracks(x, int(self.max_tracks))
+        sub = x[:, anchors]
+        Z_a, _, info = max_depth(sub, k=self.neighbours, tol=self.tol)
+        Z = interpolated_depths(x, anchors, Z_a, self.neighbours)
+        Z = Z / Z.mean()
+        return MaxDepthResult(S=shapes(x, Z), Z=Z, anchors=anchors, info=info)
