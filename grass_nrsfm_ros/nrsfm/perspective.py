@@ -20,9 +20,10 @@ from the reconstruction's centred depths; solve on ``x (1 + delta)``; repeat.
   reconstruction of its input ``x (1 + delta_prev)`` (its x, y plus the input's per-frame
   centroid) at the depths ``1 + delta`` it found, projected, against ``x``.
 * Stopping: when the relative change of ``delta`` (``||delta_k - delta_k-1|| / ||delta_k||``)
-  falls below ``tol``, when the residual rises, when a solve returns flat depths (the round is
-  void, :func:`depth_change`), or after ``max_rounds`` rounds. The round of lowest residual is
-  returned.
+  falls below ``tol``, when a solve returns flat depths (the round is void,
+  :func:`depth_change`), or after ``max_rounds`` rounds. A rise of the residual does not stop
+  it: the rounds do not converge, each solve lands anywhere in a wide band, and the round of
+  lowest residual over all of them is returned (docs/decisions/0707).
 
 Output, in the camera frame and consistent with the pinhole: ``Z = scale (1 + delta)``,
 ``X = Z x``, ``Y = Z y``, so ``S`` projects exactly onto the given ``x``. The monocular scale
@@ -38,7 +39,8 @@ import numpy as np
 
 from .measurement import as_frames, from_frames, InvalidInputError, validate_tracks
 
-#: rounds of the iteration (the first orthographic solve is round 0)
+#: rounds of the iteration (the first orthographic solve is round 0); all are run (no stop at
+#: a rise of the residual) and the lowest residual's kept (docs/decisions/0707)
 MAX_ROUNDS = 4
 #: stop when the relative change of the depths falls below this
 TOL = 0.02
@@ -249,9 +251,6 @@ class PerspectiveNRSfM:
                 best = (record.residual, index, new, result)
             if record.change < tol:
                 stopped = f'depth change {record.change:.3g} < tol {tol:g}'
-                break
-            if record.residual > best[0]:
-                stopped = f'residual rose ({record.residual:.3g} > {best[0]:.3g})'
                 break
             delta = new
         _, kept, delta, result = best
