@@ -1,7 +1,8 @@
 """Perspective: the projective-depth iteration (:mod:`grass_nrsfm_ros.nrsfm.perspective`) on
 pinhole sequences with ground truth: rendered faces (perfect tracks, the front end's
-renderer; seeds 0-2, other identities and expressions, in the quick and full runs), a synthetic sheet moved in front of a pinhole, and the real 10-frame subsets
-kinect_paper10 / tshirt10. e3D with a per-frame scale throughout.
+renderer; seeds 0-2, other identities and expressions, in the quick and full runs), a
+synthetic sheet moved in front of a pinhole, and the real 10-frame subsets kinect_paper10 /
+tshirt10. e3D with a per-frame scale throughout.
 
 Prints, per sequence: the orthographic e3D of the same points, the first (orthographic)
 solve on the normalised tracks, the perspective result THROUGH THE WIRED PATH (``grass-nrsfm
