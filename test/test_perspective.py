@@ -123,8 +123,7 @@ class Scripted:
 
     def fit(self, W):
         xy = as_frames(self.x, 2)
-        given = np.einsum('fcp,fcp->fp', as_frames(W, 2), xy) / np.einsum('fcp,fcp->fp', xy,
-                                                                            xy) - 1.0
+        given = np.einsum('fcp,fcp->fp', as_frames(W, 2), xy) / np.sum(xy ** 2, axis=1) - 1.0
         z = self.scripts[min(self.calls, len(self.scripts) - 1)] * self.truth
         self.calls += 1
         centred = as_frames(W, 2) - as_frames(W, 2).mean(axis=2, keepdims=True)
