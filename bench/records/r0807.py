@@ -20,7 +20,10 @@ registered), the image's x, y with the true depths (the orthographic model's flo
 factorisation on all 245 tracks completed and on the weak-perspective image, the oracle
 rotations' spread and the estimates' errors against them.
 
-    python -m bench.records.r0807 [--floors] [--variants est/px/-,oracle/px/-,...]
+With ``--mocap`` (record 0808): the four Akhter mocap sequences, our solver with the default,
+the rigid and Dai's rank-1 rotations, and the rank rule's reason per sequence.
+
+    python -m bench.records.r0807 [--floors] [--mocap] [--variants est/px/-,oracle/px/-,...]
 """
 import argparse
 import time
@@ -122,10 +125,23 @@ def floors(data):
                      for k in range(1, 7)))
 
 
+def mocap():
+    from bench import common
+    for name in ('drink', 'pickup', 'yoga', 'dance'):
+        with np.load(common.data_root() / 'akhter_mocap' / f'{name}.npz') as z:
+            W, S = z['W'].astype(float), z['S'].astype(float)
+        rule = estimate_rotations(W).scores['rule']
+        errors = [e3d(GrassmannNRSfM(**kw).fit(W).S, S) for kw in
+                  ({}, {'rotations': 'rigid'}, {'rotations': 'dai', 'K_rot': 1})]
+        print(f'{name}: default / rigid rotations / Dai K 1: '
+              + ' / '.join(f'{e:.4f}' for e in errors) + f' ({rule})', flush=True)
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser()
     parser.add_argument('--variants', default=VARIANTS)
     parser.add_argument('--floors', action='store_true')
+    parser.add_argument('--mocap', action='store_true')
     args = parser.parse_args(argv)
     data = back_data()
     if data is None:
@@ -133,6 +149,8 @@ def main(argv=None):
         return
     if args.floors:
         floors(data)
+    if args.mocap:
+        mocap()
     for name in args.variants.split(',') if args.variants else []:
         run_variant(name, data)
 
