@@ -13,16 +13,18 @@ small, textured part of the surface, that part outweighs the rest.
   cluster, not the spread of a random sample).
 * :func:`fill_dropped`: each dropped track's 3D point is the affine combination of its
   FILL_NEIGHBOURS nearest kept tracks whose weights reproduce its 2D trajectory over all frames
-  (locally linear reconstruction weights, regularised); x, y are its own data. Exact for a
-  locally planar patch.
+  (locally linear reconstruction weights, regularised), both found in the FILL_DIMS leading
+  principal directions of the kept trajectories; x, y are its own data. Exact for a locally
+  planar patch.
 
 Shapes: ``W: (2F, P)``, ``S: (3F, P)``, ``keep: (P',)`` sorted indices of the kept tracks.
 """
 import numpy as np
+import scipy.sparse as sp
 from sklearn.neighbors import NearestNeighbors
 
 from .inextensible import trajectory_embedding
-from .measurement import as_frames, centre, from_frames, track_scale
+from .measurement import as_frames, centre, economy_svd, from_frames, track_scale
 
 #: fewest neighbours of the density estimate
 DENSITY_NEIGHBOURS = 8
@@ -38,6 +40,9 @@ DENSITY_MIN_SHARE = 0.05
 FILL_NEIGHBOURS = 8
 #: Tikhonov regularisation of the reconstruction weights, relative to the trace
 FILL_REGULARISATION = 1e-5
+#: leading principal directions of the kept trajectories the fill's neighbours and weights are
+#: found in (None: the whole 2F-dimensional trajectories)
+FILL_DIMS = 24
 #: entries per chunk of (dropped tracks x rows x neighbours)
 CHUNK = 1 << 22
 
@@ -89,7 +94,9 @@ def fill_dropped(S_kept, labels_kept, W, keep):
     S = np.empty((F, 3, P))
     S[:, :, keep] = kept
     S[:, :2, dropped] = Wc[:, dropped].reshape(F, 2, -1)
-    S[:, 2, dropped] = np.einsum('fdk,dk->fd', kept[:, 2, :][:, nbrs], weights)
+    combine = sp.csr_matrix((weights.ravel(), (np.repeat(np.arange(dropped.size), nbrs.shape[1]),
+                                               nbrs.ravel())), shape=(dropped.size, keep.size))
+    S[:, 2, dropped] = (combine @ kept[:, 2, :].T).T
     S[:, 2, :] -= S[:, 2, :].mean(axis=1, keepdims=True)
     labels_kept = np.asarray(labels_kept)
     labels = np.empty(P, dtype=labels_kept.dtype)
@@ -103,6 +110,8 @@ def _reconstruction_weights(Wc, keep, dropped, k=FILL_NEIGHBOURS):
     best reproduce each dropped column of ``Wc: (2F, P)`` (centred, unit RMS) from its nearest
     kept columns."""
     k = min(k, keep.size)
+    if FILL_DIMS is not None and FILL_DIMS < Wc.shape[0]:
+        Wc = economy_svd(Wc[:, keep])[0][:, :FILL_DIMS].T @ Wc          # (FILL_DIMS, P)
     W_kept = Wc[:, keep]
     nbrs = NearestNeighbors(n_neighbors=k).fit(W_kept.T).kneighbors(
         Wc[:, dropped].T, return_distance=False)                   # nearest first
