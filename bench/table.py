@@ -255,20 +255,26 @@ def frontend_table(doc):
     t = doc.get('targets', {})
     lines = ['| sequence | method | step | tracks in frame 0 | error median / p95 px | '
              'frame-0 tracks alive at the end (where visible) | ms per frame (1 thread) | '
-             'e3D tracked / perfect |', '|---|---|---|---|---|---|---|---|']
+             'e3D tracked / perfect | tracked, perspective / rigid (e3D) |',
+             '|---|---|---|---|---|---|---|---|---|']
     for r in doc['rows']:
         ms = r.get('ms_per_frame_1_thread', r.get('ms_per_frame'))
         ratio = r.get('e3d_ratio')
+        rigid = '-' if 'e3d_perspective_over_rigid' not in r else (
+            f"{fmt(r['e3d_perspective_over_rigid'], 3)} ({fmt(r['e3d_tracked_perspective'])} / "
+            f"{fmt(r['e3d_tracked_rigid'])})")
         lines.append(f"| {r['sequence']} | {r['method']} | {r['step']} | {r['tracks_frame0']} | "
                      f"{fmt(r['error_median_px'], 2)} / {fmt(r['error_p95_px'], 2)} | "
                      f"{100 * r['alive_last_among_visible_last']:.0f} % | {fmt(ms, 1)} | "
-                     f'{fmt(ratio, 3)} |')
+                     f'{fmt(ratio, 3)} | {rigid} |')
     if t:
         lines += ['', f"Bars: face error {t['face_error_median_px']} / {t['face_error_p95_px']} "
                   f"px, sheet {t['sheet_error_median_px']} / {t['sheet_error_p95_px']} px, "
                   f"alive {100 * t['alive_last_among_visible_last']:.0f} %, "
                   f"{t['ms_per_frame_5000_tracks']} ms at 5,000 tracks, e3D ratio "
-                  f"{t['e3d_ratio']}."]
+                  f"{t['e3d_ratio']}"
+                  + (f", face perspective / rigid {t['face_perspective_over_rigid']}."
+                     if 'face_perspective_over_rigid' in t else '.')]
     return lines
 
 
