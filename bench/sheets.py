@@ -10,7 +10,10 @@ factorisation's; the issue's bar is <= 0.6 for every sheet):
   own depths, or synchronised over the neighbour graph);
 * ``sheet_registered``: the prior inside the estimation (:class:`isometry.SheetNRSfM` with
   ``alternations=1``): the rotations registered to the 'sync' sheet depths, the solver run
-  again from them and from those shapes, its depths refined again (docs/decisions/0706).
+  again from them and from those shapes, its depths refined again (docs/decisions/0706);
+* ``max_depth``: Chhatkuli et al.'s maximum-depth heuristic
+  (:class:`max_depth.MaxDepthNRSfM`, pinhole only: it needs the rays' divergence; record
+  0709).
 
 Sequences: the package's synthetic 'bending' and 'waving' sheets (orbiting camera, several
 seeds) and the front end's rendered sheets (:func:`frontend.scenes.sheet_scene`: a head-turn
@@ -19,14 +22,17 @@ camera; perfect tracks of surface samples), each orthographic and through a pinh
 :mod:`bench.perspective`, the rendered ones where the renderer put them, f = 620 px at 640 x
 480). Under the pinhole every option runs inside the projective-depth iteration
 (:class:`perspective.PerspectiveNRSfM`) and rigid factorisation is of the normalised tracks;
-``no_inextensible`` and ``isometry_solver`` are orthographic only. Writes
+``no_inextensible`` and ``isometry_solver`` are orthographic only. The real 10-frame subsets
+kinect_paper10 and tshirt10 (a paper, a T-shirt; ground truth from depth) are pinhole rows
+(bars 0.09 / 0.11, record 0705). Writes
 ``bench/results/sheets.json``. ``python -m bench.sheets [--smoke|--full]``.
 """
 import sys
+import time
 
 import numpy as np
 
-from grass_nrsfm_ros.nrsfm import camera, faces, isometry, metrics, synthetic
+from grass_nrsfm_ros.nrsfm import camera, faces, isometry, max_depth, metrics, synthetic
 from grass_nrsfm_ros.nrsfm.measurement import as_frames, from_frames
 from grass_nrsfm_ros.nrsfm.perspective import PerspectiveNRSfM
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
@@ -70,6 +76,10 @@ def sequences(mode):
                 if projection == 'pinhole':
                     W = camera.project(S)
                 yield f'rendered_{kind}_seed{seed}', projection, W, S
+    for name in ('kinect_paper10', 'tshirt10'):
+        loaded = common.load_dataset(name)
+        if loaded is not None:
+            yield name, 'pinhole', loaded[0], loaded[1]
 
 
 def options(projection):
@@ -82,7 +92,9 @@ def options(projection):
         chosen['no_inextensible'] = GrassmannNRSfM(inextensible='never')
         chosen['isometry_solver'] = isometry.SheetNRSfM(GrassmannNRSfM(), signs='solver')
         return chosen
-    return {name: PerspectiveNRSfM(solver) for name, solver in chosen.items()}
+    chosen = {name: PerspectiveNRSfM(solver) for name, solver in chosen.items()}
+    chosen['max_depth'] = max_depth.MaxDepthNRSfM()
+    return chosen
 
 
 def case(name, projection, W, S):
@@ -91,14 +103,17 @@ def case(name, projection, W, S):
     rigid = e3d(rigid_factorisation(W)[1])
     row = {'sequence': name, 'projection': projection, 'F': W.shape[0] // 2, 'P': W.shape[1],
            'rigid': rigid}
+    row['seconds_cpu'] = {}
     for option, solver in options(projection).items():
+        start = time.process_time()
         row[option] = e3d(solver.fit(W).S)
+        row['seconds_cpu'][option] = time.process_time() - start
     row['ratios'] = {k: row[k] / rigid for k in OPTIONS if k in row}
     return row
 
 
 OPTIONS = ('default', 'no_inextensible', 'isometry_solver', 'isometry_sync',
-           'sheet_registered')
+           'sheet_registered', 'max_depth')
 
 
 def run(mode):
