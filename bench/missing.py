@@ -10,13 +10,16 @@
   against the camera; record 0807).
 * ``occlusion``: the package's synthetic kinds with 20 % of the entries unseen in
   occlusion-like blocks (:func:`synthetic.occlusion_mask`), e3D over every entry (and over the
-  seen ones) against the same tracks complete (bar <= 1.15).
+  seen ones) against the same tracks complete (bar <= 1.15); both also with the true
+  rotations (``WarmStart(R=seq.R)``), which split the ratio into what the rotations and what
+  the shapes cost (record 0809).
 * ``drift``: 5 % of the tracks drifting up to 20 px (:func:`synthetic.drifting_tracks`, 1 px =
   the sequence's max |centred W| / 200), against the clean tracks (bar <= 1.2), with
-  ``robust`` 'never' (the default) and 'cauchy'; the drifting tracks found, clean ones touched.
+  ``robust`` 'never' (the default) and 'cauchy'; the drifting tracks found, clean ones touched;
+  the default and the clean tracks also with the true rotations (record 0809).
 
-Synthetic: 60 frames x 400 tracks, orbiting camera, noise r = 0.005 (1 px), seeds 3 (and 4 in
---full). ``python -m bench.missing [--smoke|--full]`` writes ``bench/results/missing.json``.
+Synthetic: 60 frames x 400 tracks, orbiting camera, noise r = 0.005 (1 px), seeds 3 (and 4, 5
+in --full). ``python -m bench.missing [--smoke|--full]`` writes ``bench/results/missing.json``.
 """
 import sys
 import time
@@ -136,10 +139,14 @@ def occlusion_row(kind, seed, F, P):
     full, t_full = solve(seq.W)
     masked, t_masked = solve(W)
     complete_e3d, masked_e3d = e3d(full.S, seq.S), e3d(masked.S, seq.S)
+    true = WarmStart(R=seq.R)
+    complete_true, masked_true = (e3d(solve(X, init=true)[0].S, seq.S) for X in (seq.W, W))
     return {'case': 'occlusion', 'sequence': kind, 'seed': seed, 'F': F, 'P': P,
             'unseen': float(1 - visible.mean()), 'complete': complete_e3d, 'masked': masked_e3d,
             'masked_seen': e3d(masked.S, seq.S, visible=visible),
             'ratio': masked_e3d / complete_e3d, 'bar': BARS['occlusion'],
+            'complete_true_rotations': complete_true, 'masked_true_rotations': masked_true,
+            'ratio_true_rotations': masked_true / complete_true,
             'seconds': t_masked, 'seconds_complete': t_full,
             'completion': masked.report.completion}
 
@@ -149,8 +156,12 @@ def drift_row(kind, seed, F, P):
     W, drifting = synthetic.drifting_tracks(seq.W, 0.05, 20.0, np.random.default_rng(seed + 200))
     common.log(f'missing: drift {kind} seed {seed}')
     clean = e3d(solve(seq.W)[0].S, seq.S)
+    true = WarmStart(R=seq.R)
+    clean_true, never_true = (e3d(solve(X, init=true)[0].S, seq.S) for X in (seq.W, W))
     row = {'case': 'drift', 'sequence': kind, 'seed': seed, 'F': F, 'P': P, 'clean': clean,
-           'bar': BARS['drift'], 'drifting': int(drifting.sum())}
+           'bar': BARS['drift'], 'drifting': int(drifting.sum()),
+           'clean_true_rotations': clean_true, 'never_true_rotations': never_true,
+           'ratio_true_rotations': never_true / clean_true}
     for robust in ('never', 'cauchy'):
         result, seconds = solve(W, robust=robust)
         down = np.zeros(P, dtype=bool)
@@ -168,8 +179,9 @@ def drift_row(kind, seed, F, P):
 def summary(rows):
     """Per case: the mean of the ratios and how many rows meet the bar."""
     out = {}
-    for case, key in (('occlusion', 'ratio'), ('drift', 'ratio_never'), ('drift', 'ratio_cauchy'),
-                      ('back', 'ratio')):
+    for case, key in (('occlusion', 'ratio'), ('occlusion', 'ratio_true_rotations'),
+                      ('drift', 'ratio_never'), ('drift', 'ratio_cauchy'),
+                      ('drift', 'ratio_true_rotations'), ('back', 'ratio')):
         values = [r[key] for r in rows if r['case'] == case]
         if values:
             out[f'{case} {key}'] = {'mean': float(np.mean(values)), 'max': float(np.max(values)),
@@ -180,7 +192,7 @@ def summary(rows):
 
 def run(mode):
     kinds = mode.pick(('bending',), synthetic.kinds(), synthetic.kinds())
-    seeds = mode.pick((3,), (3,), (3, 4))
+    seeds = mode.pick((3,), (3,), (3, 4, 5))
     F, P = mode.pick((30, 150), (60, 400), (60, 400))
     rows = []
     if mode.name != 'smoke':
@@ -212,12 +224,16 @@ def text(payload):
                        f"rigid on all 245 completed {r['rigid_all']:.4f}")
         elif r['case'] == 'occlusion':
             out.append(f"occlusion {r['sequence']} s{r['seed']}: {r['masked']:.4f} / "
-                       f"{r['complete']:.4f} = {r['ratio']:.3f} (seen {r['masked_seen']:.4f})")
+                       f"{r['complete']:.4f} = {r['ratio']:.3f} (seen {r['masked_seen']:.4f}); "
+                       f"true rotations {r['masked_true_rotations']:.4f} / "
+                       f"{r['complete_true_rotations']:.4f} = {r['ratio_true_rotations']:.3f}")
         else:
             out.append(f"drift {r['sequence']} s{r['seed']}: never {r['ratio_never']:.3f}, "
                        f"cauchy {r['ratio_cauchy']:.3f} (found {r['found']}/{r['drifting']}, "
                        f"clean touched {r['clean_touched']}; clean+cauchy "
-                       f"{r['clean_tracks_robust']:.3f})")
+                       f"{r['clean_tracks_robust']:.3f}); true rotations "
+                       f"{r['never_true_rotations']:.4f} / {r['clean_true_rotations']:.4f} = "
+                       f"{r['ratio_true_rotations']:.3f}")
     for key, value in payload['summary'].items():
         out.append(f"{key}: mean {value['mean']:.3f}, max {value['max']:.3f}, "
                    f"{value['meet_bar']}/{value['rows']} within the bar")

@@ -357,14 +357,20 @@ def missing_table(doc):
         elif r['case'] == 'occlusion':
             lines.append(f"| occlusion blocks | {r['sequence']} s{r['seed']} | {size} | "
                          f"{fmt(r['unseen'], 3)} | {fmt(r['masked'])} (seen "
-                         f"{fmt(r['masked_seen'])}) | complete: {fmt(r['complete'])} | "
-                         f"{fmt(r['ratio'], 3)} ({r['bar']}) |")
+                         f"{fmt(r['masked_seen'])}); true rotations "
+                         f"{fmt(r.get('masked_true_rotations'))} | complete: "
+                         f"{fmt(r['complete'])}; true rotations "
+                         f"{fmt(r.get('complete_true_rotations'))} | {fmt(r['ratio'], 3)} "
+                         f"({r['bar']}); true rotations {fmt(r.get('ratio_true_rotations'), 3)} |")
         else:
             lines.append(f"| 5 % drifting 20 px | {r['sequence']} s{r['seed']} | {size} | - | "
                          f"{fmt(r['never'])}; robust 'cauchy' {fmt(r['cauchy'])} (found "
-                         f"{r['found']}/{r['drifting']}, clean touched {r['clean_touched']}) | "
-                         f"clean: {fmt(r['clean'])} | {fmt(r['ratio_never'], 3)}; cauchy "
-                         f"{fmt(r['ratio_cauchy'], 3)} ({r['bar']}) |")
+                         f"{r['found']}/{r['drifting']}, clean touched {r['clean_touched']}); "
+                         f"true rotations {fmt(r.get('never_true_rotations'))} | clean: "
+                         f"{fmt(r['clean'])}; true rotations "
+                         f"{fmt(r.get('clean_true_rotations'))} | "
+                         f"{fmt(r['ratio_never'], 3)}; cauchy {fmt(r['ratio_cauchy'], 3)} "
+                         f"({r['bar']}); true rotations {fmt(r.get('ratio_true_rotations'), 3)} |")
     return lines
 
 
@@ -392,7 +398,7 @@ SECTIONS = (('accuracy', 'Accuracy', 'e3D; "A": Akhter\'s metric, the one of the
             ('perspective', 'Perspective', 'The projective-depth iteration; e3D with a '
              'per-frame scale (`python -m bench.perspective`)', perspective_table),
             ('missing', 'Missing data and tracker errors', 'Unseen entries and drifting '
-             'tracks in the offline solver; record 0800, 0801, 0807 '
+             'tracks in the offline solver; record 0800, 0801, 0807, 0809 '
              '(`python -m bench.missing`)',
              missing_table),
             ('sheets', 'Sheets', 'e3D and its ratio to rigid factorisation per option '
