@@ -66,3 +66,25 @@ def test_bad_parameters_are_refused(params):
     W, _ = pinhole_bending(F=4, P=40)
     with pytest.raises(InvalidInputError, match=next(iter(params))):
         max_depth.MaxDepthNRSfM(**params).fit(W)
+
+
+def test_the_solver_runs_it_for_a_sheet_through_a_pinhole():
+    """``GrassmannNRSfM(projection='perspective', surface='sheet')``: the heuristic's shapes,
+    projecting onto the tracks, within the bar of rigid; the report says so. Orthographic
+    tracks and unseen entries are refused (record 0440)."""
+    from grass_nrsfm_ros.nrsfm import GrassmannNRSfM
+    W, S = pinhole_bending()
+    result = GrassmannNRSfM(projection='perspective', surface='sheet').fit(W)
+    np.testing.assert_allclose(camera.project(result.S), W, atol=1e-12)
+    rigid = metrics.e3d(rigid_factorisation(W)[1], S, scale=True)
+    low_rank = metrics.e3d(GrassmannNRSfM(projection='perspective').fit(W).S, S, scale=True)
+    sheet = metrics.e3d(result.S, S, scale=True)
+    assert sheet <= BAR * rigid < low_rank, (sheet, rigid, low_rank)
+    assert result.report.stages == ['max_depth'] and result.report.converged
+    assert result.R.shape == (10, 3, 3) and np.allclose(result.R, np.eye(3))
+    with pytest.raises(InvalidInputError, match="projection 'perspective'"):
+        GrassmannNRSfM(surface='sheet').fit(W)
+    visible = np.ones((10, 80), bool)
+    visible[0, 0] = False
+    with pytest.raises(InvalidInputError, match='complete tracks'):
+        GrassmannNRSfM(projection='perspective', surface='sheet').fit(W, visible=visible)

@@ -187,6 +187,12 @@ SOLVER_PARAMS = (
           "projecting onto the tracks, each frame's mean depth 1; 'auto': perspective where "
           'camera intrinsics come with the tracks (reconstruct with K or --camera), '
           'orthographic otherwise.'),
+    _mode('surface', 'any', ('any', 'sheet'),
+          "What is reconstructed. 'any': the low-rank chain (Algorithm 1 and its stages); "
+          "'sheet': a surface that bends without stretching (paper, a mat, a sheet) seen "
+          "through a pinhole: Chhatkuli et al.'s maximum-depth heuristic on the normalised "
+          "tracks instead (needs projection 'perspective'; tens of seconds per sequence, "
+          'offline use; docs/decisions/0709, 0440).'),
     _mode('robust', 'never', ('never', 'cauchy'),
           "'cauchy': tracks whose residual against a low-rank approximation of all tracks is "
           "far above the others (a tracker's drift or jumps) weighed down in the data term "

@@ -21,6 +21,7 @@ from threadpoolctl import ThreadpoolController
 
 from . import config
 from .admm import AdmmRun, AdmmState, run, Timer
+from .max_depth import MaxDepthNRSfM, TOL as TOL_SHEET
 from .measurement import as_frames, from_frames, InvalidInputError
 from .perspective import PerspectiveNRSfM
 from .problem import initial_shapes, NRSfMResult, Problem, SolverReport, WarmStart
@@ -100,6 +101,8 @@ class GrassmannNRSfM:
         if beta_max is not None:
             values['beta_max'] = beta_max
         params = validate_solver(values)
+        if params['surface'] == 'sheet':
+            return self._sheet(W, params, visible)
         if params['projection'] == 'perspective':
             if visible is not None and not np.all(visible):
                 raise InvalidInputError("projection 'perspective' takes complete tracks; "
@@ -159,6 +162,35 @@ class GrassmannNRSfM:
         report.rotation_method, report.K_rot = base.rotation_method, base.K_rot
         report.rotation_checked = base.rotation_checked
         return result
+
+    @staticmethod
+    def _sheet(W, params, visible):
+        """``surface='sheet'``: the maximum-depth heuristic (:mod:`.max_depth`) on the
+        normalised pinhole tracks; ``S`` in the camera frame projecting onto ``W``, ``R`` the
+        identity (the camera frame is the world's), no groups."""
+        if params['projection'] != 'perspective':
+            raise InvalidInputError("surface 'sheet' takes normalised pinhole tracks: set "
+                                    "projection 'perspective' (reconstruct with K or --camera)")
+        if visible is not None and not np.all(visible):
+            raise InvalidInputError("surface 'sheet' takes complete tracks; visible marks "
+                                    'some entries unseen')
+        start = time.perf_counter()
+        with one_blas_thread():
+            result = MaxDepthNRSfM().fit(W)
+        F, P = result.Z.shape
+        info = result.info
+        converged = info['violation'] <= TOL_SHEET
+        report = SolverReport(stages=['max_depth'], converged=converged,
+                              reason='cones met' if converged else 'cutting-plane rounds out',
+                              iterations=int(info['rounds']),
+                              seconds={'total': time.perf_counter() - start})
+        report.notes.append(f'maximum-depth heuristic on {result.anchors.size} of {P} tracks '
+                            f"(the others interpolated): {info['rounds']} cutting-plane rounds, "
+                            f"worst cone violation {info['violation']:.3g} "
+                            '(docs/decisions/0709)')
+        return NRSfMResult(S=result.S, R=np.repeat(np.eye(3)[None], F, axis=0),
+                           translation=np.zeros((2 * F, 1)), groups=np.zeros(P, dtype=int),
+                           blocks=np.array([0, F]), report=report)
 
     def _perspective(self, W, init, progress, beta_max):
         """``projection='perspective'``: the projective-depth iteration around this chain run
