@@ -17,7 +17,8 @@ the surface; ``--options``: its keyword arguments) and measures, per sequence an
 * e3D (per-frame Procrustes with scale) of GrassmannNRSfM on the complete frame-0 tracks in
   normalised coordinates ``K^-1 [u v 1]`` over e3D from perfect tracks of the same points;
   and of the tracked points through the pinhole (``projection='perspective'``) over rigid
-  factorisation's (issues #37, #38: the rendered face from the front end's tracks, e3D / rigid).
+  factorisation's (issues #37, #38: the rendered face from the front end's tracks, e3D / rigid);
+  for the sheet also with ``surface='sheet'`` (the maximum-depth heuristic).
 
 Figures go to stdout and ``bench/results/frontend.json`` (``--smoke``: 12 frames, one
 method, ``bench/results/smoke/``).
@@ -148,6 +149,10 @@ def reconstruction(scene, uv, true_uv, X):
     out['e3d_tracked_rigid'] = e3d(rigid_factorisation(W)[1], S, scale=True)
     out['e3d_perspective_over_rigid'] = (out['e3d_tracked_perspective'] /
                                          out['e3d_tracked_rigid'])
+    if 'sheet' in scene.name:                   # the sheet option (docs/decisions/0440)
+        out['e3d_tracked_sheet'] = e3d(GrassmannNRSfM(projection='perspective',
+                                                      surface='sheet').fit(W).S, S, scale=True)
+        out['e3d_sheet_over_rigid'] = out['e3d_tracked_sheet'] / out['e3d_tracked_rigid']
     return out
 
 

@@ -263,6 +263,9 @@ def frontend_table(doc):
         rigid = '-' if 'e3d_perspective_over_rigid' not in r else (
             f"{fmt(r['e3d_perspective_over_rigid'], 3)} ({fmt(r['e3d_tracked_perspective'])} / "
             f"{fmt(r['e3d_tracked_rigid'])})")
+        if 'e3d_sheet_over_rigid' in r:
+            rigid += (f"; surface sheet {fmt(r['e3d_sheet_over_rigid'], 3)} "
+                      f"({fmt(r['e3d_tracked_sheet'])})")
         lines.append(f"| {r['sequence']} | {r['method']} | {r['step']} | {r['tracks_frame0']} | "
                      f"{fmt(r['error_median_px'], 2)} / {fmt(r['error_p95_px'], 2)} | "
                      f"{100 * r['alive_last_among_visible_last']:.0f} % | {fmt(ms, 1)} | "
