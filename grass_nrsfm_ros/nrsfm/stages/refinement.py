@@ -6,7 +6,7 @@ lengths, signs re-estimated from the world shapes), kept when that cuts the vari
 Speaks ``S: (3F, P)`` camera frame, ``W: (2F, P)``, ``R: (F, 3, 3)``.
 Report: ``inextensible``, a note with the edge-length variations.
 """
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -55,15 +55,15 @@ def check(S, W, params):
         return None
     idx = check_tracks(W.shape[1], params['random_state'])
     _, info = refine_depth(S[:, idx], neighbour_edges(W[:, idx]))
-    return _check_of(info, idx.size, used=None)
+    return _check_of(info, idx.size)
 
 
-def _check_of(info, tracks, used):
-    """The :class:`Check` of a :func:`refine_depth` ``info``; ``used`` None: by the ratio."""
+def _check_of(info, tracks):
+    """The :class:`Check` of a :func:`refine_depth` ``info``, used when its ratio is below
+    INEXTENSIBLE_RATIO."""
     before, after = info['length_variation_before'], info['length_variation_after']
     ratio = after / before if before > 0 else 1.0
-    return Check(before, after, ratio, tracks, ratio < INEXTENSIBLE_RATIO if used is None
-                 else used)
+    return Check(before, after, ratio, tracks, ratio < INEXTENSIBLE_RATIO)
 
 
 def run(S, R, W, params, result, report):
@@ -72,7 +72,7 @@ def run(S, R, W, params, result, report):
     refined = None
     if result is None:
         refined, info = refine_depth(S, neighbour_edges(W), R=R)
-        result = _check_of(info, W.shape[1], used=True)
+        result = replace(_check_of(info, W.shape[1]), used=True)
     c = result
     report.inextensible = c.used
     report.notes.append(
