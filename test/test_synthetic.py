@@ -4,12 +4,13 @@ import numpy as np
 import pytest
 
 from conftest import data_root
+from grass_nrsfm_ros.nrsfm import synthetic
 from grass_nrsfm_ros.nrsfm.measurement import as_frames, centre, from_frames, to_camera
 from grass_nrsfm_ros.nrsfm.metrics import e3d
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
-from grass_nrsfm_ros.nrsfm.synthetic import (camera_motions, default_sequence, kinds,
-                                             make_sequence, observe, rotations_from_angles,
-                                             Sequence)
+from grass_nrsfm_ros.nrsfm.synthetic import (all_kinds, camera_motions, default_sequence,
+                                             kinds, make_sequence, observe,
+                                             rotations_from_angles, Sequence)
 
 
 def rigid_with_residual(W):
@@ -21,7 +22,7 @@ def rigid_with_residual(W):
 
 
 @pytest.mark.parametrize('camera', camera_motions())
-@pytest.mark.parametrize('kind', kinds())
+@pytest.mark.parametrize('kind', all_kinds())
 def test_shapes_and_conventions(kind, camera):
     seq = make_sequence(kind, n_frames=12, n_points=300, camera=camera, seed=3,
                         translation=0.3)
@@ -116,7 +117,7 @@ def test_rigid_baseline_is_exact_on_a_rigid_sequence():
     assert e3d(S, rigid) < 1e-6
 
 
-@pytest.mark.parametrize('kind', kinds())
+@pytest.mark.parametrize('kind', all_kinds())
 def test_every_kind_deforms_non_rigidly(kind):
     seq = make_sequence(kind, n_frames=40, n_points=800, camera='orbit', seed=0)
     sv = np.linalg.svd(seq.S_world, compute_uv=False)
@@ -124,6 +125,50 @@ def test_every_kind_deforms_non_rigidly(kind):
     _, S, residual = rigid_with_residual(seq.W)
     assert residual > 0.02                      # rank 3 cannot explain the tracks
     assert e3d(S, seq.S) > 0.05                 # and the best rigid shape is wrong
+
+
+def grid_edges(kind, n=101, n_frames=60):
+    """Lengths of the edges along x and along y ``(F, n, n-1)`` of an ``n x n`` grid over
+    ``kind``'s parameters, and the world shapes ``(F, 3, n * n)``."""
+    u, v = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n))
+    X = synthetic._KINDS[kind](np.stack([u.ravel(), v.ravel()], 1),
+                               synthetic.frame_times(n_frames))
+    grid = X.reshape(n_frames, 3, n, n)
+    along_x = np.linalg.norm(np.diff(grid, axis=3), axis=1)
+    along_y = np.linalg.norm(np.diff(grid, axis=2), axis=1).transpose(0, 2, 1)
+    return along_x, along_y, X
+
+
+def test_the_flag_waves_visibly_without_stretching():
+    """Record 0713: every edge of a 101 x 101 grid keeps its flat length (2 / 100 along x,
+    1.5 / 100 along y) to 1e-3 (measured 0.9995-1.0000 along x: chords of a curved section,
+    1.0000 along y), while the depth range of each frame is 0.31-0.75 (waving 0.68-0.87), the
+    depth of a point moves by 0.13 over the sequence (std, mean over points; waving 0.16) and
+    the stacked shapes are far from rank 3."""
+    along_x, along_y, X = grid_edges('flag')
+    np.testing.assert_allclose(along_x / 0.02, 1.0, atol=1e-3)
+    np.testing.assert_allclose(along_y / 0.015, 1.0, atol=1e-6)
+    centred = X - X.mean(axis=2, keepdims=True)
+    depth_range = np.ptp(centred[:, 2], axis=1)
+    assert depth_range.min() > 0.25 and depth_range.max() > 0.6, depth_range
+    assert centred[:, 2].std(axis=0).mean() > 0.1
+    sv = np.linalg.svd(centred.reshape(-1, X.shape[2]), compute_uv=False)
+    assert sv[3] / sv[0] > 0.08                          # measured 0.125 (waving 0.176)
+    assert 'flag' not in kinds() and 'flag' in all_kinds()
+
+
+def test_waving_stretches_and_bending_does_not():
+    """The inextensible priors' assumption: 'bending' keeps its edge lengths (within 1e-3 of
+    frame 0's), 'waving' does not: along x they range over 0.69-1.29 of frame 0's (p5-p95)
+    on a 40 x 40 grid, along y 0.91-1.10 (record 0713)."""
+    along_x, along_y, _ = grid_edges('bending', n=40)
+    for edges in (along_x, along_y):
+        np.testing.assert_allclose(edges / edges[0], 1.0, atol=1e-3)
+    along_x, along_y, _ = grid_edges('waving', n=40)
+    x = np.percentile(along_x / along_x[0], [5, 95])
+    y = np.percentile(along_y / along_y[0], [5, 95])
+    assert x[0] < 0.75 and x[1] > 1.25, x
+    assert y[0] < 0.95 and y[1] > 1.05, y
 
 
 def test_default_sequence():

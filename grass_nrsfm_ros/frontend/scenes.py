@@ -376,8 +376,8 @@ def sheet_scene(kind='bending', n_frames=100, *, size=(480, 640), focal=620.0,
                 shading=0.3, supersample=1, seed=0):
     """A textured sheet deforming as :mod:`..nrsfm.synthetic`'s ``kind`` (a mesh of
     ``grid`` vertices over its parameters), turning by :func:`turn` (``yaw`` degrees)."""
-    if kind not in synthetic.kinds():
-        raise ValueError(f'unknown kind {kind!r}; choose from {synthetic.kinds()}')
+    if kind not in synthetic.all_kinds():
+        raise ValueError(f'unknown kind {kind!r}; choose from {synthetic.all_kinds()}')
     nu, nv = grid
     params = np.stack(np.meshgrid(np.linspace(0, 1, nu), np.linspace(0, 1, nv)),
                       axis=-1).reshape(-1, 2)
