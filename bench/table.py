@@ -329,6 +329,13 @@ def sheets_table(doc):
                      + ' | '.join(f"{fmt(r[o])} ({fmt(r['ratios'][o], 2)})" if o in r else '-'
                                   for o in options)
                      + ' |')
+    if doc.get('note'):
+        lines += ['', doc['note']]
+    runs = doc.get('runs') or []
+    if len(runs) > 1:
+        lines += ['', 'Rows merged from runs (`python -m bench.sheets --kinds ...` replaces its '
+                  "kinds' rows): " + '; '.join(f"{', '.join(r['kinds'])}: {r['date']}, commit "
+                                               f"{r['git']}" for r in runs) + '.']
     return lines
 
 
