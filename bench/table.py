@@ -254,7 +254,9 @@ def grassmann_table(doc):
 def frontend_table(doc):
     t = doc.get('targets', {})
     lines = ['| sequence | method | step | tracks in frame 0 | error median / p95 px | '
-             'frame-0 tracks alive at the end (where visible) | ms per frame (1 thread) | '
+             'frame-0 tracks alive at the end: where visible / where visible and within '
+             f"{doc['rows'][0].get('facing_degrees', 75):.0f}° of face-on throughout | "
+             'ms per frame (1 thread) at tracks (load average) | '
              'e3D tracked / perfect | tracked, perspective / rigid (e3D) |',
              '|---|---|---|---|---|---|---|---|---|']
     for r in doc['rows']:
@@ -263,13 +265,21 @@ def frontend_table(doc):
         rigid = '-' if 'e3d_perspective_over_rigid' not in r else (
             f"{fmt(r['e3d_perspective_over_rigid'], 3)} ({fmt(r['e3d_tracked_perspective'])} / "
             f"{fmt(r['e3d_tracked_rigid'])})")
+        facing = ('-' if 'alive_last_among_facing_always' not in r
+                  else f"{100 * r['alive_last_among_facing_always']:.0f} %")
         if 'e3d_sheet_over_rigid' in r:
             rigid += (f"; surface sheet {fmt(r['e3d_sheet_over_rigid'], 3)} "
                       f"({fmt(r['e3d_tracked_sheet'])})")
         lines.append(f"| {r['sequence']} | {r['method']} | {r['step']} | {r['tracks_frame0']} | "
                      f"{fmt(r['error_median_px'], 2)} / {fmt(r['error_p95_px'], 2)} | "
-                     f"{100 * r['alive_last_among_visible_last']:.0f} % | {fmt(ms, 1)} | "
+                     f"{100 * r['alive_last_among_visible_last']:.0f} % / {facing} | "
+                     f"{fmt(ms, 1)} at {r.get('timing_tracks_mean', 0):,.0f} "
+                     f"({fmt(r.get('load_average_1min'), 1)}) | "
                      f'{fmt(ratio, 3)} | {rigid} |')
+    face = doc.get('sequences', {}).get('face', {})
+    if 'tracks_step2' in face:
+        lines += ['', f"Tracks in the face's frame 0: {face['tracks_step2']:,} at step 2, "
+                  f"{face['tracks_step1']:,} at step 1."]
     if t:
         lines += ['', f"Bars: face error {t['face_error_median_px']} / {t['face_error_p95_px']} "
                   f"px, sheet {t['sheet_error_median_px']} / {t['sheet_error_p95_px']} px, "

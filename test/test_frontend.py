@@ -316,6 +316,9 @@ def test_surface_leaving_the_view_kills_its_tracks_and_new_ones_are_born():
     assert not np.isin(first.ids[on_sheet], last.ids).any(), 'tracks survived off-image'
     assert sum(fr.counts['left'] + fr.counts['failed'] for fr in frames) >= on_sheet.sum()
     assert sum(fr.counts['born'] for fr in frames[1:]) > 0.5 * on_sheet.sum()
+    births_at = [f for f, fr in enumerate(frames) if f and fr.counts['born']]
+    assert births_at and all(frames[f].counts['reanchored'] for f in births_at), \
+        'tracks were born without a new reference frame'
     assert len(last.ids) > 0.6 * len(first.ids)
     every = np.concatenate([fr.ids for fr in frames])
     births = np.concatenate([fr.ids[fr.age == 0] for fr in frames])

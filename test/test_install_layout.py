@@ -1,6 +1,6 @@
-"""The installed layout that `ros2 run grass_nrsfm_ros node` resolves (built with colcon into a
-temporary folder), the executable starting and stopping cleanly, and a plain pip install that
-puts no `node` on PATH."""
+"""The installed layout that `ros2 run grass_nrsfm_ros node` and `ros2 run grass_nrsfm_ros tracker`
+resolve (built with colcon into a temporary folder), both executables starting and stopping
+cleanly, and a plain pip install that puts no `node` on PATH."""
 import os
 from pathlib import Path
 import random
@@ -45,13 +45,13 @@ def colcon_install(tmp_path_factory):
     return ws / 'install' / PACKAGE
 
 
-def ros_run_lookup(prefix):
-    """What `ros2 run` does: executables named `node` under <prefix>/lib/<package>."""
+def ros_run_lookup(prefix, name='node'):
+    """What `ros2 run` does: executables called ``name`` under <prefix>/lib/<package>."""
     found = []
     for root, dirs, files in os.walk(prefix / 'lib' / PACKAGE):
         dirs[:] = sorted(d for d in dirs if not d.startswith('.'))
         found += [Path(root) / f for f in sorted(files)
-                  if f == 'node' and os.access(Path(root) / f, os.X_OK)]
+                  if f == name and os.access(Path(root) / f, os.X_OK)]
     return found
 
 
@@ -61,29 +61,35 @@ def test_colcon_layout_resolves_like_ros2_run(colcon_install, monkeypatch):
     prefix = Path(get_package_prefix(PACKAGE))
     assert prefix == colcon_install
     assert len(ros_run_lookup(prefix)) == 1
+    assert len(ros_run_lookup(prefix, 'tracker')) == 1
     assert (prefix / 'share' / PACKAGE / 'package.xml').is_file()
     assert (prefix / 'share' / PACKAGE / 'config' / 'params.yaml').is_file()
     assert (prefix / 'share' / PACKAGE / 'launch' / 'grass_nrsfm.launch.py').is_file()
 
 
-def test_installed_node_starts_and_stops_on_sigint(colcon_install, tmp_path):
-    (node,) = ros_run_lookup(colcon_install)
+@pytest.mark.parametrize('name, arguments, started', [
+    ('node', ['params.yaml', '-p', 'window_size:=20'], 'window 20, stride 10'),
+    ('tracker', ['tracker.yaml', '-p', 'step:=6'], 'step 6 px, the whole image')])
+def test_installed_executable_starts_and_stops_on_sigint(colcon_install, tmp_path, name,
+                                                         arguments, started):
+    (node,) = ros_run_lookup(colcon_install, name)
     site = next(colcon_install.glob('lib/python*/site-packages'))
     env = {**os.environ, 'AMENT_PREFIX_PATH': str(colcon_install), 'PYTHONPATH': str(site),
            'ROS_DOMAIN_ID': str(random.randint(0, 101)),
            'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST', 'ROS_LOG_DIR': str(tmp_path)}
-    params = colcon_install / 'share' / PACKAGE / 'config' / 'params.yaml'
-    proc = subprocess.Popen([str(node), '--ros-args', '--params-file', str(params),
-                             '-p', 'window_size:=20', '-r', '__ns:=/install_test'],
+    params, *arguments = arguments
+    params = colcon_install / 'share' / PACKAGE / 'config' / params
+    proc = subprocess.Popen([str(node), '--ros-args', '--params-file', str(params), *arguments,
+                             '-r', '__ns:=/install_test'],
                             cwd=tmp_path, env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
-    head = read_until(proc, 'window 20, stride 10', timeout=60)     # its start-up line
+    head = read_until(proc, started, timeout=60)     # its start-up line
     assert proc.poll() is None, head
     proc.send_signal(signal.SIGINT)
     out, _ = proc.communicate(timeout=15)
     out = head + out
     assert proc.returncode == 0, out
-    assert 'window 20, stride 10' in out
+    assert started in out
     assert 'Traceback' not in out
 
 

@@ -124,7 +124,9 @@ def test_demo_runs_and_its_outputs_hold_what_it_prints(tmp_path):
 
     assert (out / 'last_frame.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
 
-    # from images: the front end's tracking error, then the solver and the live pipeline
+    # the demo starts from images: the front end's tracking error, then the solver and the
+    # live pipeline, before the embedded tracks
+    assert run.stdout.index('from images:') < run.stdout.index('whole sequence: e3D')
     complete, median, p95 = printed(r'from images: .*?, (\d+) in every frame; tracking error '
                                     r'median ([\d.]+) px, p95 ([\d.]+) px', run.stdout)
     assert complete >= 300

@@ -107,6 +107,26 @@ def test_occluded_points_are_not_visible():
     assert points.visible[0, far & inside].all()
 
 
+def test_facing_is_the_cosine_from_face_on():
+    """A square facing the camera is seen face on at its centre; turned by 60 degrees about
+    the vertical, a point on its axis is seen at 60 degrees."""
+    scene = two_squares()
+    truth = scene.truth(np.array([[80.0, 60.0], [1.0, 1.0]]))
+    np.testing.assert_allclose(truth.facing[:, 0], 1.0, atol=1e-3)
+    assert np.isnan(truth.facing[:, 1]).all()
+    vertices, triangles, texcoords = square(0.0, 0.5)
+    turn = np.radians(60.0)
+    R = np.array([[np.cos(turn), 0, np.sin(turn)], [0, 1, 0], [-np.sin(turn), 0, np.cos(turn)]])
+    slanted = (vertices @ R.T + [0, 0, 3.0])[None]
+    size = (120, 160)
+    scene = scenes.Scene('slanted', slanted, triangles, texcoords, scenes.pinhole(size, 100.0),
+                         size, scenes.random_texture((64, 64), 1), scenes.random_texture(size, 2))
+    truth = scene.truth(np.array([[79.5, 59.5]]))
+    sight = truth.X[0, 0] / np.linalg.norm(truth.X[0, 0])
+    np.testing.assert_allclose(truth.facing[0, 0], abs(sight @ R[:, 2]), rtol=1e-9)
+    assert 0.45 < truth.facing[0, 0] < 0.55
+
+
 def test_points_leaving_the_image_are_not_visible():
     scene = scenes.sheet_scene('bending', 10, size=(120, 160), focal=150.0, extent_px=90,
                                grid=(16, 12), exit_share=0.5)

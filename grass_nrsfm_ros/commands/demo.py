@@ -1,17 +1,18 @@
-"""``grass-nrsfm demo``: the quick start's main job on the embedded synthetic sequence.
+"""``grass-nrsfm demo``: the quick start's main job, from images, then on the embedded
+synthetic tracks.
 
-Generates :func:`~grass_nrsfm_ros.nrsfm.synthetic.default_sequence` (no external data), then
-1. reconstructs it whole with GrassmannNRSfM and with rigid factorisation, printing e3D;
-2. converts it to a tracks bag and runs the node's live pipeline over it offline,
-   recording tracks, ground truth and reconstructed points in an MCAP bag, printing e3D;
-3. draws the last frame (estimate beside ground truth) as a PNG;
-4. starts from images: a textured bending sheet rendered by :mod:`~grass_nrsfm_ros.frontend.
+1. starts from images: a textured bending sheet rendered by :mod:`~grass_nrsfm_ros.frontend.
    scenes` (made here, no files), tracked by :class:`~grass_nrsfm_ros.frontend.DenseTracker`,
    reconstructed whole and by the live pipeline with the renderer's intrinsics ``K`` (points
    through the pinhole); prints the tracking error (px) and e3D against the renderer's ground
    truth, and the whole-sequence e3D of the perspective model (``projection``
    'perspective' on the normalised tracks), which does not beat the orthographic solve on
-   this sheet yet (docs/decisions/0703).
+   this sheet yet (docs/decisions/0703);
+2. generates :func:`~grass_nrsfm_ros.nrsfm.synthetic.default_sequence` (no external data) and
+   reconstructs it whole with GrassmannNRSfM and with rigid factorisation, printing e3D;
+3. converts it to a tracks bag and runs the node's live pipeline over it offline,
+   recording tracks, ground truth and reconstructed points in an MCAP bag, printing e3D;
+4. draws its last frame (estimate beside ground truth) as a PNG.
 """
 from pathlib import Path
 import shutil
@@ -94,6 +95,7 @@ def picture(result, seq, path):
 def run(args):
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
+    from_images()
     seq = make_sequence(args.frames, args.points)
     print(f'{seq.name}: {seq.n_frames} frames x {seq.n_points} tracks (synthetic, with ground '
           f'truth) -> {out}/')
@@ -109,7 +111,6 @@ def run(args):
     picture(result, seq, out / 'last_frame.png')
     print(f'wrote {out / "reconstruction.npz"}, {points_bag}/ (tracks, ground truth, points; '
           f'MCAP) and {out / "last_frame.png"}')
-    from_images()
     return 0
 
 

@@ -48,12 +48,15 @@ class Raster:
 class Truth:
     """Ground truth of N surface points: ``uv: (F, N, 2)`` pixels, ``X: (F, N, 3)`` camera
     frame, ``visible: (F, N)`` bool, ``on_surface: (N,)`` bool (False: the start pixel showed
-    the background; its rows are NaN and never visible)."""
+    the background; its rows are NaN and never visible), ``facing: (F, N)`` the cosine
+    between the surface normal and the line of sight (1: seen face on, 0: edge-on; NaN off
+    the surface)."""
 
     uv: np.ndarray
     X: np.ndarray
     visible: np.ndarray
     on_surface: np.ndarray
+    facing: np.ndarray = None
 
 
 class Scene:
@@ -138,7 +141,8 @@ class Scene:
         X[:, ~on_surface] = np.nan
         projected = self.project(X)
         visible = self._visible(X, projected) & on_surface[None]
-        return Truth(uv=projected, X=X, visible=visible, on_surface=on_surface)
+        return Truth(uv=projected, X=X, visible=visible, on_surface=on_surface,
+                     facing=_facing(corners, X))
 
     def sample_points(self, n_points, seed=0):
         """``n_points`` area-weighted surface samples as a :class:`Truth` (uniform in the
@@ -148,7 +152,8 @@ class Scene:
         X = np.einsum('fncd,nc->fnd', self.vertices[:, self.triangles[tri], :], bary)
         projected = self.project(X)
         return Truth(uv=projected, X=X, visible=self._visible(X, projected),
-                     on_surface=np.ones(n_points, bool))
+                     on_surface=np.ones(n_points, bool),
+                     facing=_facing(self.vertices[:, self.triangles[tri], :], X))
 
     # ------------------------------------------------------------ internals
 
@@ -215,6 +220,17 @@ class Scene:
         image = background.astype(np.float32).reshape(-1, 3)
         image[hit] = colour
         return image.reshape(background.shape)
+
+
+def _facing(corners, X):
+    """``(F, N)`` |cos| of the angle between each point's triangle normal and its line of
+    sight, from ``corners: (F, N, 3, 3)`` and the points ``X: (F, N, 3)`` (camera frame)."""
+    normal = np.cross(corners[..., 1, :] - corners[..., 0, :],
+                      corners[..., 2, :] - corners[..., 0, :])
+    with np.errstate(invalid='ignore', divide='ignore'):
+        cosine = np.einsum('fnd,fnd->fn', normal, X) / (
+            np.linalg.norm(normal, axis=-1) * np.linalg.norm(X, axis=-1))
+    return np.abs(cosine)
 
 
 def _interpolate(bary, values, corners):
