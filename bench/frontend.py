@@ -39,6 +39,7 @@ from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
 from . import common
 
 RECONSTRUCTION_POINTS = 1500         # complete tracks given to the solver (evenly subsampled)
+CALIBRATION_RUNS = 3                 # untimed runs that size the timing region
 FACING_DEGREES = 75.0                # beyond this from face-on a point counts as edge-on
 
 
@@ -181,18 +182,21 @@ def density(image, mask):
 def timing(images, mask, method, target=5000, options=None, repeats=3):
     """Milliseconds per frame on one OpenCV thread with at least ``target`` tracks on average:
     the region is ``mask`` at the step that holds at least twice ``target`` grid points, its
-    lowest rows cut until it holds ``target``, then enlarged by the share of tracks a first
-    (untimed) run lost on average; the median of ``repeats`` runs (each a median over
-    frames)."""
+    lowest rows cut until it holds ``target``, then enlarged by the share of tracks an untimed
+    run lost on average (at most ``CALIBRATION_RUNS`` runs); the median of ``repeats`` runs
+    (each a median over frames)."""
     step = max(1, int(np.sqrt(mask.sum() / (2 * target))))
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)
     try:
-        region = _cut_rows(mask, step, target)
-        frames, _ = run_tracker(images, method, step, region, **(options or {}))
-        mean = np.mean([len(fr.ids) for fr in frames])
-        if mean < target:
-            region = _cut_rows(mask, step, target * target / mean)
+        points = target
+        for _ in range(CALIBRATION_RUNS):
+            region = _cut_rows(mask, step, points)
+            frames, _ = run_tracker(images, method, step, region, **(options or {}))
+            mean = np.mean([len(fr.ids) for fr in frames])
+            if mean >= target or (region == mask).all():
+                break
+            points *= target / mean
         runs = [run_tracker(images, method, step, region, **(options or {}))
                 for _ in range(repeats)]
     finally:
