@@ -196,7 +196,7 @@ def timing(images, mask, method, target=5000, options=None, repeats=3):
             mean = np.mean([len(fr.ids) for fr in frames])
             if mean >= target or (region == mask).all():
                 break
-            points *= target / mean
+            points = points * target / mean + mask.shape[1] / step     # and a grid row more
         runs = [run_tracker(images, method, step, region, **(options or {}))
                 for _ in range(repeats)]
     finally:
