@@ -11,6 +11,9 @@ factorisation's; the issue's bar is <= 0.6 for every sheet):
 * ``sheet_registered``: the prior inside the estimation (:class:`isometry.SheetNRSfM` with
   ``alternations=1``): the rotations registered to the 'sync' sheet depths, the solver run
   again from them and from those shapes, its depths refined again (docs/decisions/0706);
+* ``sheet_transport``: local-isometry depths from the tracks alone, their signs carried from
+  frame to frame by the best orthographic camera (:class:`sheet_transport.TransportSheetNRSfM`,
+  orthographic only; record 0714);
 * ``max_depth``: Chhatkuli et al.'s maximum-depth heuristic
   (:class:`max_depth.MaxDepthNRSfM`, pinhole only: it needs the rays' divergence; record
   0709).
@@ -35,7 +38,9 @@ Writes ``bench/results/sheets.json``. ``python -m bench.sheets [--smoke|--full] 
 flag,...]``: with ``--kinds`` only those kinds' synthetic and rendered sheets run, and their
 rows replace the same kinds' rows of the JSON already there (the others, the real subsets
 included, are kept; ``runs`` in the JSON and the table's note say which rows came from which
-run).
+run). ``--options sheet_transport,...`` with ``--kinds``: only those options run, on those
+kinds' sheets under the projections they apply to, and their figures are added to the rows
+already there (the rows' other figures are kept).
 """
 import argparse
 import json
@@ -43,7 +48,8 @@ import time
 
 import numpy as np
 
-from grass_nrsfm_ros.nrsfm import camera, faces, isometry, max_depth, metrics, synthetic
+from grass_nrsfm_ros.nrsfm import (camera, faces, isometry, max_depth, metrics,
+                                   sheet_transport, synthetic)
 from grass_nrsfm_ros.nrsfm.measurement import as_frames, from_frames
 from grass_nrsfm_ros.nrsfm.perspective import PerspectiveNRSfM
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
@@ -110,13 +116,15 @@ def options(projection):
     if projection == 'orthographic':
         chosen['no_inextensible'] = GrassmannNRSfM(inextensible='never')
         chosen['isometry_solver'] = isometry.SheetNRSfM(GrassmannNRSfM(), signs='solver')
+        chosen['sheet_transport'] = sheet_transport.TransportSheetNRSfM()
         return chosen
     chosen = {name: PerspectiveNRSfM(solver) for name, solver in chosen.items()}
     chosen['max_depth'] = max_depth.MaxDepthNRSfM()
     return chosen
 
 
-def case(name, projection, W, S):
+def case(name, projection, W, S, only=None):
+    """The row of one sheet: every option under ``projection`` (``only``: those named)."""
     common.log(f'sheets: {name} {projection}')
     e3d = lambda est: metrics.e3d(est, S, scale=True)     # noqa: E731
     rigid = e3d(rigid_factorisation(W)[1])
@@ -124,6 +132,8 @@ def case(name, projection, W, S):
            'rigid': rigid}
     row['seconds_cpu'] = {}
     for option, solver in options(projection).items():
+        if only is not None and option not in only:
+            continue
         start = time.process_time()
         row[option] = e3d(solver.fit(W).S)
         row['seconds_cpu'][option] = time.process_time() - start
@@ -132,7 +142,7 @@ def case(name, projection, W, S):
 
 
 OPTIONS = ('default', 'no_inextensible', 'isometry_solver', 'isometry_sync',
-           'sheet_registered', 'max_depth')
+           'sheet_registered', 'sheet_transport', 'max_depth')
 
 
 def order(row):
@@ -171,11 +181,46 @@ def merged(mode, rows, kinds):
     return sorted(kept + rows, key=order), runs
 
 
-def run(mode, kinds=None):
+def with_options(mode, rows, kinds, only):
+    """``(rows, runs)``: the JSON's rows in ``mode``'s folder with the options ``only``
+    measured in ``rows`` (the same sheets) added to them."""
+    path = mode.out_dir / 'sheets.json'
+    if not path.exists():
+        raise SystemExit(f'{path} is missing; --options adds figures to its rows')
+    old = json.loads(path.read_text())
+    if old.get('mode') != mode.name:
+        raise SystemExit(f"{path} holds a {old.get('mode')} run; --options adds to the same "
+                         f'mode only ({mode.name})')
+    new = {(r['sequence'], r['projection']): r for r in rows}
+    out = []
+    for r in old['rows']:
+        add = new.pop((r['sequence'], r['projection']), None)
+        if add is not None:
+            if abs(add['rigid'] - r['rigid']) > 1e-6 * r['rigid']:
+                raise SystemExit(f"{r['sequence']}: rigid {add['rigid']} differs from the "
+                                 f"JSON's {r['rigid']}: not the same tracks")
+            r = dict(r, seconds_cpu=dict(r.get('seconds_cpu', {}), **add['seconds_cpu']))
+            for o in only:
+                if o in add:
+                    r[o] = add[o]
+            r['ratios'] = {k: r[k] / r['rigid'] for k in OPTIONS if k in r}
+        out.append(r)
+    if new:
+        raise SystemExit(f'rows not in {path}: {sorted(new)}')
+    env = common.environment()
+    runs = old.get('runs') or []
+    runs = runs + [{'kinds': [f"{', '.join(only)} on {', '.join(kinds)}"], 'date': env['date'],
+                    'git': env['git']}]
+    return out, runs
+
+
+def run(mode, kinds=None, only=None):
     """Measure every option on the sheets (``kinds``: only those kinds' synthetic and
     rendered sheets, merged into the JSON already there)."""
-    rows = [case(*seq) for seq in sequences(mode, kinds or KINDS, real=kinds is None)]
-    if kinds is None:
+    rows = [case(*seq, only=only) for seq in sequences(mode, kinds or KINDS, real=kinds is None)]
+    if only is not None:
+        rows, runs = with_options(mode, [r for r in rows if r['seconds_cpu']], kinds, only)
+    elif kinds is None:
         env = common.environment()
         runs = [{'kinds': [*KINDS, 'real'], 'date': env['date'], 'git': env['git']}]
     else:
@@ -212,13 +257,19 @@ def main(argv=None):
     size.add_argument('--full', action='store_true')
     parser.add_argument('--kinds', help=f"comma-separated, of {', '.join(KINDS)}: only their "
                         'sheets, merged into the JSON already there')
+    parser.add_argument('--options', help=f"comma-separated, of {', '.join(OPTIONS)} (with "
+                        '--kinds): only these options, added to the rows already there')
     args = parser.parse_args(argv)
-    kinds = None
+    kinds = only = None
     if args.kinds:
         kinds = tuple(k for k in args.kinds.split(',') if k)
         if not set(kinds) <= set(KINDS):
             parser.error(f'--kinds: choose from {", ".join(KINDS)}')
-    run(common.Mode('smoke' if args.smoke else 'full' if args.full else 'quick'), kinds)
+    if args.options:
+        only = tuple(o for o in args.options.split(',') if o)
+        if not set(only) <= set(OPTIONS) or kinds is None:
+            parser.error(f'--options: with --kinds, choose from {", ".join(OPTIONS)}')
+    run(common.Mode('smoke' if args.smoke else 'full' if args.full else 'quick'), kinds, only)
 
 
 if __name__ == '__main__':

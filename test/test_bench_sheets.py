@@ -43,3 +43,21 @@ def test_a_kinds_run_merges_into_its_own_mode_only(tmp_path):
     (tmp_path / 'sheets.json').write_text(json.dumps({'mode': 'full', 'rows': []}))
     with pytest.raises(SystemExit, match='full run'):
         sheets.merged(common.Mode('quick', out=tmp_path), [], ('flag',))
+
+
+def test_an_options_run_adds_its_figures_and_keeps_the_rows_others(tmp_path):
+    old = [dict(row(f'{source}_flag_seed0', projection), default=2.0, ratios={'default': 2.0})
+           for projection in ('orthographic', 'pinhole') for source in ('synthetic', 'rendered')]
+    (tmp_path / 'sheets.json').write_text(json.dumps(
+        {'mode': 'quick', 'rows': old, 'runs': [{'kinds': ['flag'], 'date': 'then',
+                                                 'git': 'abc'}]}))
+    mode = common.Mode('quick', out=tmp_path)
+    new = [dict(row(f'{source}_flag_seed0'), sheet_transport=0.5,
+                seconds_cpu={'sheet_transport': 1.0}) for source in ('synthetic', 'rendered')]
+    rows, runs = sheets.with_options(mode, new, ('flag',), ('sheet_transport',))
+    assert [r['ratios'] for r in rows] == 2 * [{'default': 2.0, 'sheet_transport': 0.5}] + \
+        2 * [{'default': 2.0}]
+    assert runs[0]['kinds'] == ['flag'] and runs[1]['kinds'] == ['sheet_transport on flag']
+    new[0]['rigid'] = 1.5                                 # not the same tracks
+    with pytest.raises(SystemExit, match='not the same tracks'):
+        sheets.with_options(mode, new, ('flag',), ('sheet_transport',))

@@ -1,0 +1,228 @@
+"""Orthographic sheets: local-isometry depths with their signs carried from frame to frame.
+
+Under orthographic projection a sheet that bends without stretching fixes each point's depth
+gradient up to its sign (:func:`.isometry.local_gradients`; the edge lengths from the image
+alone, :func:`.isometry.edge_lengths` of zero depths). The whole difficulty is the signs
+(record 0714: with the true signs these depths are 0.12-0.45 of rigid factorisation's error on
+the bending and flag sheets, with the synchronised signs of :mod:`.isometry` 0.36-1.6). A
+developable sheet is face-on along whole rulings, where the gradient changes sign, so the
+first-order sign agreement of :func:`.isometry.synchronised_signs` cannot hold. Here:
+
+1. Per frame, candidate signs minimise the residual of an affine fit of the signed, bounded
+   gradients ``h = g / sqrt(1 + |g|^2)`` (the normal's image part) over each point's
+   neighbourhood, plus a first-order agreement term: ``s^T M s`` with ``M: (P, P)`` sparse
+   (:func:`sign_cost`), minimised from its lowest eigenvector and from all-ones by single
+   flips (:func:`spatial_signs`).
+2. From a start frame with those signs, the depths are integrated
+   (:func:`.isometry.integrate_depths`' least squares), the frame's 3D shape is carried to the
+   next frame by the orthographic camera that best maps it onto the next image (a 2 x 3 fit
+   made orthonormal, its third row the depth direction), and the next frame's signs are those
+   of the carried depths' gradients; its depths are integrated again, weakly tied to the
+   carried ones; forwards and backwards to the ends (:func:`carry`). No rotation or low-rank
+   solve is needed.
+3. Several start frames (every ``start_step``-th) are tried, and the sequence whose signs have
+   the lowest total cost ``sum_f s_f^T M_f s_f`` is kept.
+
+``x, y`` are the centred tracks; depths are centred per frame. Orthographic tracks only (on
+pinhole tracks use :mod:`.max_depth`). Complete tracks only.
+
+Shapes: ``W: (2F, P)``; ``S: (3F, P)`` camera frame; ``X: (F, 3, P)``; gradients ``(F, P,
+2)``; signs ``(F, P)`` of +-1; neighbours ``(P, k)`` indices.
+"""
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.linalg import eigsh, splu
+
+from . import isometry
+from .measurement import as_frames, from_frames
+
+#: weight of the first-order agreement term relative to the affine-fit residual
+FIRST_ORDER = 1.0
+#: every this many frames is a start frame
+START_STEP = 2
+#: weight tying a frame's depths to the carried ones (relative to unit edge weights)
+CARRY_ANCHOR = isometry.ANCHOR
+
+
+def bounded(g):
+    """``(..., 2)``: the gradients' bounded form ``g / sqrt(1 + |g|^2)``."""
+    return g / np.sqrt(1.0 + (g ** 2).sum(-1, keepdims=True))
+
+
+def sign_cost(xy, h, nbr, first=FIRST_ORDER):
+    """Sparse symmetric ``M: (P, P)`` with ``s^T M s`` the summed residual of an affine fit of
+    ``s h`` over each point's neighbourhood (itself and ``nbr: (P, k)``) plus ``first`` times
+    the summed squared differences ``|s_p h_p - s_q h_q|^2`` over the edges (up to a constant);
+    ``xy: (P, 2)``, ``h: (P, 2)``."""
+    P = xy.shape[0]
+    N = np.concatenate([np.arange(P)[:, None], nbr], 1)
+    m = N.shape[1]
+    a = np.repeat(N, m, axis=1).ravel()
+    b = np.tile(N, (1, m)).ravel()
+    D = np.concatenate([np.ones((P, m, 1)), xy[N] - xy[:, None, :]], -1)
+    Q, _ = np.linalg.qr(D)
+    residual = np.eye(m)[None] - Q @ Q.transpose(0, 2, 1)              # (P, m, m)
+    hh = np.einsum('pad,pbd->pab', h[N], h[N])
+    M = sp.csr_matrix(((residual * hh).ravel(), (a, b)), shape=(P, P))
+    i = np.repeat(np.arange(P), nbr.shape[1])
+    j = nbr.ravel()
+    A = sp.csr_matrix(((h[i] * h[j]).sum(-1), (i, j)), shape=(P, P))
+    A = A + A.T
+    M = M + first * (sp.diags(np.asarray(abs(A).sum(1)).ravel()) - A)
+    return ((M + M.T) * 0.5).tocsc()
+
+
+def _descend(M, s):
+    """Single sign flips that lower ``s^T M s`` until none does."""
+    s = s.copy()
+    diag = M.diagonal()
+    field_ = M @ s
+    for _ in range(50 * s.size):
+        delta = -4.0 * s * (field_ - diag * s)
+        p = int(np.argmin(delta))
+        if delta[p] >= -1e-12:
+            break
+        field_ -= 2.0 * s[p] * M[:, p].toarray().ravel()
+        s[p] = -s[p]
+    return s
+
+
+def spatial_signs(X, h, nbr, first=FIRST_ORDER):
+    """``(signs (F, P), costs)``: per frame of ``X: (F, 3, P)`` the signs of ``h: (F, P, 2)``
+    found for :func:`sign_cost` (from its lowest eigenvector and from all-ones), and the
+    frames' cost matrices."""
+    F, P, _ = h.shape
+    signs = np.ones((F, P))
+    costs = []
+    for f in range(F):
+        M = sign_cost(X[f, :2].T, h[f], nbr, first)
+        costs.append(M)
+        if P <= 1000:
+            v = np.linalg.eigh(M.toarray())[1][:, 0]
+        else:
+            shift = -1e-3 * abs(M).sum() / P
+            v = eigsh(M, k=1, sigma=shift, which='LM', v0=np.ones(P))[1][:, 0]
+        best = None
+        for start in (np.where(v >= 0, 1.0, -1.0), np.ones(P)):
+            s = _descend(M, start)
+            c = s @ (M @ s)
+            if best is None or c < best[0]:
+                best = (c, s)
+        signs[f] = best[1]
+    return signs, costs
+
+
+def carried_depths(X_prev, xy):
+    """``(P,)`` centred depths of the shape ``X_prev: (3, P)`` seen by the orthographic camera
+    that best maps it onto the centred image ``xy: (2, P)``."""
+    M = xy @ np.linalg.pinv(X_prev)
+    U, _, Vt = np.linalg.svd(M, full_matrices=False)
+    R = U @ Vt
+    z = np.cross(R[0], R[1]) @ X_prev
+    return z - z.mean()
+
+
+def depth_gradients(xy, z, nbr):
+    """``(P, 2)`` least-squares gradients of the depths ``z: (P,)`` over the neighbours."""
+    d = xy.T[nbr] - xy.T[:, None, :]
+    dz = z[nbr] - z[:, None]
+    normal = np.einsum('pki,pkj->pij', d, d) + 1e-12 * np.eye(2)
+    return np.linalg.solve(normal, np.einsum('pki,pk->pi', d, dz)[..., None])[..., 0]
+
+
+class _Integrator:
+    """:func:`.isometry.integrate_depths` for one frame, its factorisation reused."""
+
+    def __init__(self, X, nbr, lengths, anchor=CARRY_ANCHOR):
+        F, _, P = X.shape
+        k = nbr.shape[1]
+        self.i = np.repeat(np.arange(P), k)
+        self.j = nbr.ravel()
+        E = self.i.size
+        rows = np.arange(E)
+        self.incidence = sp.csr_matrix((np.r_[-np.ones(E), np.ones(E)],
+                                        (np.r_[rows, rows], np.r_[self.i, self.j])),
+                                       shape=(E, P))
+        self.solve = splu((self.incidence.T @ self.incidence + anchor * sp.eye(P))
+                          .tocsc()).solve
+        self.anchor = anchor
+        xy = X[:, :2, :].transpose(0, 2, 1)
+        self.d = xy[:, self.j] - xy[:, self.i]                          # (F, E, 2)
+        self.size = np.sqrt(np.maximum(lengths.ravel()[None] ** 2 - (self.d ** 2).sum(-1),
+                                       0.0))
+
+    def __call__(self, f, g, z_anchor):
+        mean_g = 0.5 * (g[self.i] + g[self.j])
+        target = self.size[f] * np.where((mean_g * self.d[f]).sum(-1) >= 0, 1.0, -1.0)
+        z = self.solve(self.anchor * z_anchor + self.incidence.T @ target)
+        return z - z.mean()
+
+
+def carry(X, g, nbr, integrate, start, start_signs):
+    """``(z (F, P), signs (F, P))``: the depths of frame ``start`` from ``start_signs``, then
+    each frame's from the signs of the previous frame's shape carried onto its image
+    (module docstring, step 2)."""
+    F, _, P = X.shape
+    z = np.zeros((F, P))
+    signs = np.ones((F, P))
+    signs[start] = start_signs
+    z[start] = integrate(start, g[start] * start_signs[:, None], np.zeros(P))
+    for order in (range(start + 1, F), range(start - 1, -1, -1)):
+        for f in order:
+            prev = f - 1 if f > start else f + 1
+            zc = carried_depths(np.vstack([X[prev, :2], z[prev]]), X[f, :2])
+            s = np.where((depth_gradients(X[f, :2], zc, nbr) * g[f]).sum(-1) >= 0, 1.0, -1.0)
+            signs[f] = s
+            z[f] = integrate(f, g[f] * s[:, None], zc)
+    return z, signs
+
+
+def transport_depths(W, *, k=isometry.NEIGHBOURS, quantile=isometry.LENGTH_QUANTILE,
+                     first=FIRST_ORDER, start_step=START_STEP):
+    """``(S: (3F, P), info)``: the centred tracks ``W: (2F, P)`` with the carried local-
+    isometry depths (module docstring)."""
+    W = np.asarray(W, dtype=np.float64)
+    xy = as_frames(W, 2)
+    F, _, P = xy.shape
+    X = np.zeros((F, 3, P))
+    X[:, :2] = xy - xy.mean(axis=2, keepdims=True)
+    nbr = isometry.neighbours(W, k)
+    lengths = isometry.edge_lengths(X, nbr, quantile)
+    g, _ = isometry.local_gradients(X, nbr, lengths)
+    candidates, costs = spatial_signs(X, bounded(g), nbr, first)
+    integrate = _Integrator(X, nbr, lengths)
+    best = None
+    for start in range(0, F, max(1, int(start_step))):
+        z, signs = carry(X, g, nbr, integrate, start, candidates[start])
+        total = sum(float(s @ (M @ s)) for s, M in zip(signs, costs))
+        if best is None or total < best[0]:
+            best = (total, z, start)
+    X[:, 2] = best[1]
+    return from_frames(X), {'start_frame': best[2], 'sign_cost': best[0]}
+
+
+@dataclass
+class TransportSheetResult:
+    """``S: (3F, P)`` camera frame (centred tracks, centred depths), ``info``: the start frame
+    kept and its total sign cost."""
+    S: np.ndarray
+    info: dict = field(default_factory=dict)
+
+
+class TransportSheetNRSfM:
+    """:func:`transport_depths` as a solver: ``fit(W: (2F, P)) ->``
+    :class:`TransportSheetResult` (orthographic, complete tracks)."""
+
+    def __init__(self, neighbours=isometry.NEIGHBOURS, quantile=isometry.LENGTH_QUANTILE,
+                 first=FIRST_ORDER, start_step=START_STEP):
+        self.neighbours = neighbours
+        self.quantile = quantile
+        self.first = first
+        self.start_step = start_step
+
+    def fit(self, W):
+        S, info = transport_depths(W, k=self.neighbours, quantile=self.quantile,
+                                   first=self.first, start_step=self.start_step)
+        return TransportSheetResult(S=S, info=info)
