@@ -71,7 +71,7 @@ def test_bad_parameters_are_refused(params):
 def test_the_solver_runs_it_for_a_sheet_through_a_pinhole():
     """``GrassmannNRSfM(projection='perspective', surface='sheet')``: the heuristic's shapes,
     projecting onto the tracks, within the bar of rigid; the report says so. Orthographic
-    tracks and unseen entries are refused (record 0440)."""
+    tracks go to the orthographic sheet prior; unseen entries are refused (record 0440)."""
     from grass_nrsfm_ros.nrsfm import GrassmannNRSfM
     W, S = pinhole_bending()
     result = GrassmannNRSfM(projection='perspective', surface='sheet').fit(W)
@@ -82,8 +82,7 @@ def test_the_solver_runs_it_for_a_sheet_through_a_pinhole():
     assert sheet <= BAR * rigid < low_rank, (sheet, rigid, low_rank)
     assert result.report.stages == ['max_depth'] and result.report.converged
     assert result.R.shape == (10, 3, 3) and np.allclose(result.R, np.eye(3))
-    with pytest.raises(InvalidInputError, match="projection 'perspective'"):
-        GrassmannNRSfM(surface='sheet').fit(W)
+    assert GrassmannNRSfM(surface='sheet').fit(W).report.stages == ['sheet_transport']
     visible = np.ones((10, 80), bool)
     visible[0, 0] = False
     with pytest.raises(InvalidInputError, match='complete tracks'):

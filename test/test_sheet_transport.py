@@ -55,3 +55,23 @@ def test_an_orthographic_flag_beats_rigid_by_the_bars_margin_where_the_default_d
     assert metrics.e3d(carried.S, seq.S, scale=True) <= BAR * rigid
     assert metrics.e3d(default.S, seq.S, scale=True) > BAR * rigid
     assert carried.S.shape == seq.S.shape and 0 <= carried.info['start_frame'] < 40
+
+
+def test_the_solver_runs_it_for_an_orthographic_sheet():
+    """``GrassmannNRSfM(surface='sheet')`` on orthographic tracks: these depths, the shapes
+    (with the identity rotations and the centroids) reproducing the tracks, within the bar of
+    rigid; tracks with unseen entries are refused."""
+    import pytest
+    from grass_nrsfm_ros.nrsfm.measurement import InvalidInputError
+    seq = synthetic.make_sequence('flag', n_frames=40, n_points=300, seed=0)
+    result = GrassmannNRSfM(surface='sheet').fit(seq.W)
+    assert result.report.stages == ['sheet_transport'] and result.report.converged
+    assert np.allclose(result.R, np.eye(3))
+    image = np.einsum('fij,fjp->fip', result.R[:, :2], result.S.reshape(40, 3, -1))
+    np.testing.assert_allclose(image.reshape(80, -1) + result.translation, seq.W, atol=1e-12)
+    rigid = metrics.e3d(rigid_factorisation(seq.W)[1], seq.S, scale=True)
+    assert metrics.e3d(result.S, seq.S, scale=True) <= BAR * rigid
+    W = seq.W.copy()
+    W[:2, 0] = np.nan
+    with pytest.raises(InvalidInputError, match='complete tracks'):
+        GrassmannNRSfM(surface='sheet').fit(W)

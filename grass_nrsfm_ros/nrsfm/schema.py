@@ -189,10 +189,12 @@ SOLVER_PARAMS = (
           'orthographic otherwise.'),
     _mode('surface', 'any', ('any', 'sheet'),
           "What is reconstructed. 'any': the low-rank chain (Algorithm 1 and its stages); "
-          "'sheet': a surface that bends without stretching (paper, a mat, a sheet) seen "
-          "through a pinhole: Chhatkuli et al.'s maximum-depth heuristic on the normalised "
-          "tracks instead (needs projection 'perspective'; tens of seconds per sequence, "
-          'offline use; docs/decisions/0709, 0440).'),
+          "'sheet': a surface that bends without stretching (paper, a mat, a sheet), from "
+          'its own structure instead: through a pinhole (projection perspective) Chhatkuli '
+          "et al.'s maximum-depth heuristic on the normalised tracks (tens of seconds per "
+          'sequence, offline use; docs/decisions/0709, 0440); orthographic, local-isometry '
+          'depths with their signs carried from frame to frame (seconds; 0714). Complete '
+          'tracks only.'),
     _mode('robust', 'never', ('never', 'cauchy'),
           "'cauchy': tracks whose residual against a low-rank approximation of all tracks is "
           "far above the others (a tracker's drift or jumps) weighed down in the data term "

@@ -89,6 +89,24 @@ def _descend(M, s):
     return s
 
 
+def _lowest_vector(M):
+    """``(P,)``: the eigenvector of the lowest eigenvalue of ``M`` among the points it
+    constrains (a face-on point has no gradient, so no cost: its row is zero and would make
+    that eigenvector any mix of such points, one BLAS thread count to another); 0 elsewhere."""
+    diag = M.diagonal()
+    active = np.flatnonzero(diag > 1e-12 * max(diag.max(initial=0.0), 1e-300))
+    v = np.zeros(M.shape[0])
+    if active.size == 0:
+        return v
+    sub = M[active][:, active]
+    if active.size <= 1000:
+        v[active] = np.linalg.eigh(sub.toarray())[1][:, 0]
+    else:
+        shift = -1e-3 * abs(sub).sum() / active.size
+        v[active] = eigsh(sub, k=1, sigma=shift, which='LM', v0=np.ones(active.size))[1][:, 0]
+    return v
+
+
 def spatial_signs(X, h, nbr, first=FIRST_ORDER):
     """``(signs (F, P), costs)``: per frame of ``X: (F, 3, P)`` the signs of ``h: (F, P, 2)``
     found for :func:`sign_cost` (from its lowest eigenvector and from all-ones), and the
@@ -99,11 +117,7 @@ def spatial_signs(X, h, nbr, first=FIRST_ORDER):
     for f in range(F):
         M = sign_cost(X[f, :2].T, h[f], nbr, first)
         costs.append(M)
-        if P <= 1000:
-            v = np.linalg.eigh(M.toarray())[1][:, 0]
-        else:
-            shift = -1e-3 * abs(M).sum() / P
-            v = eigsh(M, k=1, sigma=shift, which='LM', v0=np.ones(P))[1][:, 0]
+        v = _lowest_vector(M)
         best = None
         for start in (np.where(v >= 0, 1.0, -1.0), np.ones(P)):
             s = _descend(M, start)

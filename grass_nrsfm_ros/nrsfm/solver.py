@@ -26,6 +26,7 @@ from .measurement import as_frames, from_frames, InvalidInputError
 from .perspective import PerspectiveNRSfM
 from .problem import initial_shapes, NRSfMResult, Problem, SolverReport, WarmStart
 from .schema import SOLVER_PARAMS, SOLVER_SPECS, validate_solver
+from .sheet_transport import TransportSheetNRSfM
 from .stages import (fill, refinement, registration, robust, rotation_check, rotations,
                      thinning)
 
@@ -165,31 +166,28 @@ class GrassmannNRSfM:
 
     @staticmethod
     def _sheet(W, params, visible):
-        """``surface='sheet'``: the maximum-depth heuristic (:mod:`.max_depth`) on the
-        normalised pinhole tracks; ``S`` in the camera frame projecting onto ``W``, ``R`` the
-        identity (the camera frame is the world's), no groups."""
-        if params['projection'] != 'perspective':
-            raise InvalidInputError("surface 'sheet' takes normalised pinhole tracks: set "
-                                    "projection 'perspective' (reconstruct with K or --camera)")
-        if visible is not None and not np.all(visible):
-            raise InvalidInputError("surface 'sheet' takes complete tracks; visible marks "
-                                    'some entries unseen')
+        """``surface='sheet'``: a surface that bends without stretching, from its own
+        structure instead of the low-rank chain. Pinhole (``projection='perspective'``, the
+        normalised tracks): the maximum-depth heuristic (:mod:`.max_depth`), ``S`` in the camera
+        frame projecting onto ``W``. Orthographic: local-isometry depths with their signs
+        carried from frame to frame (:mod:`.sheet_transport`), ``S`` the centred tracks with
+        those depths, ``translation`` the tracks' centroids. ``R`` the identity (the camera
+        frame is the world's), no groups."""
+        if visible is not None and not np.all(visible) or not np.isfinite(W).all():
+            raise InvalidInputError("surface 'sheet' takes complete tracks; some entries are "
+                                    'unseen')
         start = time.perf_counter()
+        F, P = W.shape[0] // 2, W.shape[1]
         with one_blas_thread():
-            result = MaxDepthNRSfM().fit(W)
-        F, P = result.Z.shape
-        info = result.info
-        converged = info['violation'] <= TOL_SHEET
-        report = SolverReport(stages=['max_depth'], converged=converged,
-                              reason='cones met' if converged else 'cutting-plane rounds out',
-                              iterations=int(info['rounds']),
-                              seconds={'total': time.perf_counter() - start})
-        report.notes.append(f'maximum-depth heuristic on {result.anchors.size} of {P} tracks '
-                            f"(the others interpolated): {info['rounds']} cutting-plane rounds, "
-                            f"worst cone violation {info['violation']:.3g} "
-                            '(docs/decisions/0709)')
+            if params['projection'] == 'perspective':
+                result = MaxDepthNRSfM().fit(W)
+                report, translation = _max_depth_report(result, P), np.zeros((2 * F, 1))
+            else:
+                result = TransportSheetNRSfM().fit(W)
+                report, translation = _transport_report(result), W.mean(axis=1, keepdims=True)
+        report.seconds = {'total': time.perf_counter() - start}
         return NRSfMResult(S=result.S, R=np.repeat(np.eye(3)[None], F, axis=0),
-                           translation=np.zeros((2 * F, 1)), groups=np.zeros(P, dtype=int),
+                           translation=translation, groups=np.zeros(P, dtype=int),
                            blocks=np.array([0, F]), report=report)
 
     def _perspective(self, W, init, progress, beta_max):
@@ -328,3 +326,27 @@ def admm_solve(problem, R, params, spatial, report, timer, progress, reason):
     S_cam *= problem.scale
     timer.add('shape', t)
     return from_frames(S_cam), state
+
+
+def _max_depth_report(result, P):
+    """The :class:`SolverReport` of a :class:`.max_depth.MaxDepthNRSfM` result on ``P``
+    tracks."""
+    info = result.info
+    converged = info['violation'] <= TOL_SHEET
+    report = SolverReport(stages=['max_depth'], converged=converged,
+                          reason='cones met' if converged else 'cutting-plane rounds out',
+                          iterations=int(info['rounds']))
+    report.notes.append(f'maximum-depth heuristic on {result.anchors.size} of {P} tracks '
+                        f"(the others interpolated): {info['rounds']} cutting-plane rounds, "
+                        f"worst cone violation {info['violation']:.3g} (docs/decisions/0709)")
+    return report
+
+
+def _transport_report(result):
+    """The :class:`SolverReport` of a :class:`.sheet_transport.TransportSheetNRSfM` result."""
+    report = SolverReport(stages=['sheet_transport'], converged=True, reason='signs carried',
+                          iterations=1)
+    report.notes.append('orthographic sheet: local-isometry depths, signs carried from frame '
+                        f"{result.info['start_frame']} (total sign cost "
+                        f"{result.info['sign_cost']:.3g}; docs/decisions/0714)")
+    return report
