@@ -105,25 +105,41 @@ def solver_signs(g, X, nbr):
     return np.where((own * g).sum(-1) >= 0, 1.0, -1.0)
 
 
+class DepthIntegrator:
+    """Depths from signed edge sizes, the edge system of ``X: (F, 3, P)``, ``nbr: (P, k)``
+    and ``lengths`` factorised once: calling it with gradients ``g: (F', P, 2)`` and
+    ``z_anchor: (F', P)`` of the ``frames`` (all by default) gives the ``(F', P)`` centred
+    depths whose edge differences are ``sign(g . d) sqrt(L^2 - |d|^2)`` (the sign from the
+    mean gradient of the edge's ends) in least squares, plus ``anchor`` times the distance to
+    ``z_anchor``."""
+
+    def __init__(self, X, nbr, lengths, anchor=ANCHOR):
+        F, _, P = X.shape
+        self.i = np.repeat(np.arange(P), nbr.shape[1])
+        self.j = nbr.ravel()
+        E = self.i.size
+        rows = np.arange(E)
+        self.incidence = sp.csr_matrix((np.r_[-np.ones(E), np.ones(E)],
+                                        (np.r_[rows, rows], np.r_[self.i, self.j])),
+                                       shape=(E, P))
+        self.solve = splu((self.incidence.T @ self.incidence + anchor * sp.eye(P))
+                          .tocsc()).solve
+        self.anchor = anchor
+        self.d = _offsets(X, nbr).reshape(F, E, 2)                       # (F, E, 2)
+        self.size = np.sqrt(np.maximum(lengths.ravel()[None] ** 2 - (self.d ** 2).sum(-1),
+                                       0.0))
+
+    def __call__(self, g, z_anchor, frames=slice(None)):
+        mean_g = 0.5 * (g[:, self.i] + g[:, self.j])
+        target = self.size[frames] * np.where((mean_g * self.d[frames]).sum(-1) >= 0, 1.0,
+                                              -1.0)                    # (F', E)
+        z = self.solve(self.anchor * z_anchor.T + self.incidence.T @ target.T).T
+        return z - z.mean(axis=1, keepdims=True)
+
+
 def integrate_depths(X, nbr, lengths, g, z_anchor, anchor=ANCHOR):
-    """``(F, P)`` centred depths whose edge differences are ``sign(g . d) sqrt(L^2 - |d|^2)``
-    (the sign from the mean gradient of the edge's ends) in least squares, plus ``anchor``
-    times the distance to ``z_anchor: (F, P)``."""
-    F, P = z_anchor.shape
-    k = nbr.shape[1]
-    i = np.repeat(np.arange(P), k)
-    j = nbr.ravel()
-    E = i.size
-    rows = np.arange(E)
-    incidence = sp.csr_matrix((np.r_[-np.ones(E), np.ones(E)], (np.r_[rows, rows], np.r_[i, j])),
-                              shape=(E, P))
-    solve = splu((incidence.T @ incidence + anchor * sp.eye(P)).tocsc()).solve
-    d = _offsets(X, nbr).reshape(F, E, 2)
-    size = np.sqrt(np.maximum(lengths.ravel()[None] ** 2 - (d ** 2).sum(-1), 0.0))
-    mean_g = 0.5 * (g[:, i] + g[:, j])
-    target = size * np.where((mean_g * d).sum(-1) >= 0, 1.0, -1.0)     # (F, E)
-    z = solve(anchor * z_anchor.T + incidence.T @ target.T).T
-    return z - z.mean(axis=1, keepdims=True)
+    """``(F, P)`` centred depths of every frame (:class:`DepthIntegrator`)."""
+    return DepthIntegrator(X, nbr, lengths, anchor)(g, z_anchor)
 
 
 def refine_sheet(S, W, *, k=NEIGHBOURS, quantile=LENGTH_QUANTILE, anchor=ANCHOR,

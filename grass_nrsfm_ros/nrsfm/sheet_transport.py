@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.linalg import eigsh, splu
+from scipy.sparse.linalg import eigsh
 
 from . import isometry
 from .measurement import as_frames, from_frames
@@ -138,58 +138,22 @@ def carried_depths(X_prev, xy):
     return z - z.mean()
 
 
-def depth_gradients(xy, z, nbr):
-    """``(P, 2)`` least-squares gradients of the depths ``z: (P,)`` over the neighbours."""
-    d = xy.T[nbr] - xy.T[:, None, :]
-    dz = z[nbr] - z[:, None]
-    normal = np.einsum('pki,pkj->pij', d, d) + 1e-12 * np.eye(2)
-    return np.linalg.solve(normal, np.einsum('pki,pk->pi', d, dz)[..., None])[..., 0]
-
-
-class _Integrator:
-    """:func:`.isometry.integrate_depths` for one frame, its factorisation reused."""
-
-    def __init__(self, X, nbr, lengths, anchor=CARRY_ANCHOR):
-        F, _, P = X.shape
-        k = nbr.shape[1]
-        self.i = np.repeat(np.arange(P), k)
-        self.j = nbr.ravel()
-        E = self.i.size
-        rows = np.arange(E)
-        self.incidence = sp.csr_matrix((np.r_[-np.ones(E), np.ones(E)],
-                                        (np.r_[rows, rows], np.r_[self.i, self.j])),
-                                       shape=(E, P))
-        self.solve = splu((self.incidence.T @ self.incidence + anchor * sp.eye(P))
-                          .tocsc()).solve
-        self.anchor = anchor
-        xy = X[:, :2, :].transpose(0, 2, 1)
-        self.d = xy[:, self.j] - xy[:, self.i]                          # (F, E, 2)
-        self.size = np.sqrt(np.maximum(lengths.ravel()[None] ** 2 - (self.d ** 2).sum(-1),
-                                       0.0))
-
-    def __call__(self, f, g, z_anchor):
-        mean_g = 0.5 * (g[self.i] + g[self.j])
-        target = self.size[f] * np.where((mean_g * self.d[f]).sum(-1) >= 0, 1.0, -1.0)
-        z = self.solve(self.anchor * z_anchor + self.incidence.T @ target)
-        return z - z.mean()
-
-
 def carry(X, g, nbr, integrate, start, start_signs):
     """``(z (F, P), signs (F, P))``: the depths of frame ``start`` from ``start_signs``, then
     each frame's from the signs of the previous frame's shape carried onto its image
-    (module docstring, step 2)."""
+    (module docstring, step 2); ``integrate`` the frames' :class:`.isometry.DepthIntegrator`."""
     F, _, P = X.shape
     z = np.zeros((F, P))
     signs = np.ones((F, P))
     signs[start] = start_signs
-    z[start] = integrate(start, g[start] * start_signs[:, None], np.zeros(P))
+    z[start] = integrate(g[[start]] * start_signs[None, :, None], np.zeros((1, P)), [start])[0]
     for order in (range(start + 1, F), range(start - 1, -1, -1)):
         for f in order:
             prev = f - 1 if f > start else f + 1
             zc = carried_depths(np.vstack([X[prev, :2], z[prev]]), X[f, :2])
-            s = np.where((depth_gradients(X[f, :2], zc, nbr) * g[f]).sum(-1) >= 0, 1.0, -1.0)
+            s = isometry.solver_signs(g[[f]], np.vstack([X[f, :2], zc])[None], nbr)[0]
             signs[f] = s
-            z[f] = integrate(f, g[f] * s[:, None], zc)
+            z[f] = integrate(g[[f]] * s[None, :, None], zc[None], [f])[0]
     return z, signs
 
 
@@ -206,7 +170,7 @@ def transport_depths(W, *, k=isometry.NEIGHBOURS, quantile=isometry.LENGTH_QUANT
     lengths = isometry.edge_lengths(X, nbr, quantile)
     g, _ = isometry.local_gradients(X, nbr, lengths)
     candidates, costs = spatial_signs(X, bounded(g), nbr, first)
-    integrate = _Integrator(X, nbr, lengths)
+    integrate = isometry.DepthIntegrator(X, nbr, lengths, CARRY_ANCHOR)
     best = None
     for start in range(0, F, max(1, int(start_step))):
         z, signs = carry(X, g, nbr, integrate, start, candidates[start])
