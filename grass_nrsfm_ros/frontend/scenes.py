@@ -56,7 +56,7 @@ class Truth:
     X: np.ndarray
     visible: np.ndarray
     on_surface: np.ndarray
-    facing: np.ndarray = None
+    facing: np.ndarray
 
 
 class Scene:
