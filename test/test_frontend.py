@@ -147,6 +147,25 @@ def test_a_track_failing_once_is_hidden_and_dies_on_the_next_failure(max_misses)
         assert back == 0
 
 
+def test_a_hidden_track_dies_when_its_keyframe_is_retired():
+    """A frame that hides tracks and becomes a keyframe (here every frame does) retires the
+    keyframe they are measured against: they die then, not one frame later, so no frame
+    keeps a second keyframe for its hidden tracks."""
+    base = texture()
+    tracker = DenseTracker(step=8, max_misses=1, reanchor_every=1)
+    first = tracker.track(shifted(base, 0, 0))
+    occluded = shifted(base, 1, 1)
+    occluded[90:150, 130:190] = shifted(texture(seed=5), 0, 0)[90:150, 130:190]
+    hidden = tracker.track(occluded)
+    inside = (first.uv[:, 0] > 140) & (first.uv[:, 0] < 180) & (first.uv[:, 1] > 100) & \
+        (first.uv[:, 1] < 140)
+    assert hidden.counts['reanchored'] and hidden.counts['failed'] >= inside.sum() >= 16
+    assert hidden.counts['missed'] == 0 and hidden.counts['lost'] >= inside.sum()
+    assert len(np.unique(tracker._key)) == 1
+    seen = tracker.track(shifted(base, 2, 2))
+    assert not np.isin(first.ids[inside], seen.ids).any()
+
+
 def test_region_rectangle_and_mask():
     base = texture()
     roi = DenseTracker(step=4, region=(100, 50, 199, 149)).track(shifted(base, 0, 0))

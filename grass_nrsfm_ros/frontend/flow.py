@@ -17,7 +17,8 @@ against it in every frame, so its error does not grow frame by frame:
 3. checks: a ZNCC of each track's patch against its keyframe patch, taken in the warped frame
    on slightly blurred images (optionally a forward-backward check); occlusion shows up as a
    failed check. A track that fails is hidden (not in the output, kept on its keyframe,
-   moved by the prediction) and dies when it fails ``max_misses`` + 1 frames in a row.
+   moved by the prediction) and dies when it fails ``max_misses`` + 1 frames in a row, or
+   when its keyframe is retired while it is hidden (so one keyframe serves every frame).
 
 A track whose patch has changed (ZNCC below ``reanchor_zncc``) is *stale*: when enough
 tracks are stale, the frame becomes a keyframe and they (with ``max_keyframes`` 1, the
@@ -144,7 +145,8 @@ class DenseTracker:
     with its keyframe patch, in the warped frame, fails), ``fb_max_px`` (forward-backward
     distance above which a track fails; None: no forward-backward check), ``max_misses``
     (int >= 0: a failed track is hidden, and dies when it fails this many frames more in a
-    row; it is not re-anchored while hidden). Keyframes: a track
+    row, or when its keyframe is retired while it is hidden: it is not re-anchored while
+    hidden). Keyframes: a track
     is stale when its ZNCC is below ``reanchor_zncc``; the frame becomes a keyframe (stale
     tracks re-anchored to it) when more than 2 % of the tracks are stale, when more than
     ``reanchor_uncovered`` of the region's grid cells hold no track (a grid point is
@@ -262,9 +264,8 @@ class DenseTracker:
         counts['failed'] = int((inside & ~passed).sum())
         counts['missed'] = int((keep & ~passed).sum())
         counts['lost'] = int((~keep).sum())
-        self._ids, self._key, self._born = self._ids[keep], self._key[keep], self._born[keep]
-        self._uv_ref, self._ref_patches = self._uv_ref[keep], self._ref_patches[keep]
-        self._uv, self._misses = uv[keep], misses[keep]
+        self._uv, self._misses = uv, misses
+        self._keep(keep)
         healthy = self._misses == 0
         stale = (zncc[keep] < self.reanchor_zncc) & healthy
         by_count, uncovered = self._needs_keyframe(grey.shape)
@@ -401,9 +402,14 @@ class DenseTracker:
         self._keyframes[key] = self._keyframe_images(grey, region)
         healthy = self._misses == 0           # missed tracks keep their keyframe
         older, held = np.unique(self._key[healthy & (self._key != key)], return_counts=True)
-        if len(older) >= self.max_keyframes:     # those holding fewest tracks are merged
-            fewest = older[np.argsort(-held, kind='stable')[self.max_keyframes - 1:]]
-            move = move | (np.isin(self._key, fewest) & healthy)
+        retired = older[np.argsort(-held, kind='stable')[self.max_keyframes - 1:]]
+        move = move | (np.isin(self._key, retired) & healthy)     # those holding fewest merge
+        hidden = ~healthy & ~np.isin(self._key, np.setdiff1d(older, retired))
+        if hidden.any():                      # hidden on a retired keyframe: they die
+            counts['lost'] += int(hidden.sum())
+            counts['missed'] -= int(hidden.sum())
+            move = move[~hidden]
+            self._keep(~hidden)
         self._key[move] = key
         self._uv_ref[move] = self._uv[move]
         self._ref_patches[move] = _centred_patches(self._keyframes[key].smoothed,
@@ -416,6 +422,12 @@ class DenseTracker:
             counts['born'] = self._birth(grey, key)
         for old in set(self._keyframes) - set(self._key.tolist()) - {key}:
             del self._keyframes[old]
+
+    def _keep(self, keep):
+        """Keep only the tracks ``keep (P,) bool`` (the others die)."""
+        self._ids, self._key, self._born = self._ids[keep], self._key[keep], self._born[keep]
+        self._uv_ref, self._ref_patches = self._uv_ref[keep], self._ref_patches[keep]
+        self._uv, self._misses = self._uv[keep], self._misses[keep]
 
     def _keyframe_images(self, grey, region):
         """The :class:`_Keyframe` of ``grey``, normalised only in the box where its
@@ -756,14 +768,13 @@ def _splat(points, size, s):
     where = _on_coarse_grid(points, s)
     base = np.floor(where).astype(np.int64)
     frac = (where - base).astype(np.float32)
-    index, weight = [], []
-    for dr in (0, 1):
-        for dc in (0, 1):
-            weight.append((frac[:, 0] if dc else 1 - frac[:, 0])
-                          * (frac[:, 1] if dr else 1 - frac[:, 1]))
-            index.append(np.clip(base[:, 1] + dr, 0, rows - 1) * cols
-                         + np.clip(base[:, 0] + dc, 0, cols - 1))
-    return np.concatenate(index), np.concatenate(weight), (rows, cols), s
+    u_weights = (1 - frac[:, 0], frac[:, 0])
+    v_weights = (1 - frac[:, 1], frac[:, 1])
+    columns = [np.minimum(np.maximum(base[:, 0] + d, 0), cols - 1) for d in (0, 1)]
+    row_starts = [np.minimum(np.maximum(base[:, 1] + d, 0), rows - 1) * cols for d in (0, 1)]
+    index = np.concatenate([row_starts[dr] + columns[dc] for dr in (0, 1) for dc in (0, 1)])
+    weight = np.concatenate([v_weights[dr] * u_weights[dc] for dr in (0, 1) for dc in (0, 1)])
+    return index, weight, (rows, cols), s
 
 
 def _coarse_field(splat, moves, use=None):
@@ -773,12 +784,17 @@ def _coarse_field(splat, moves, use=None):
     index, weight, (rows, cols), s = splat
     if use is not None:
         weight = weight * np.tile(use, 4)
-    acc = np.stack([np.bincount(index, values, minlength=rows * cols) for values in (
-        np.tile(moves[:, 0], 4) * weight, np.tile(moves[:, 1], 4) * weight, weight)])
-    acc = acc.astype(np.float32)
-    sigma = max(1.0, _FIELD_SIGMA / s)
-    acc = cv2.GaussianBlur(acc.reshape(3, rows, cols).transpose(1, 2, 0), (0, 0), sigma)
-    return np.ascontiguousarray(acc[..., :2] / np.maximum(acc[..., 2:], 1e-6))
+    acc = np.empty((rows * cols, 3), np.float32)       # (grid nodes, [u, v, weight] sums)
+    for c, values in enumerate((np.tile(moves[:, 0], 4) * weight,
+                                np.tile(moves[:, 1], 4) * weight, weight)):
+        acc[:, c] = np.bincount(index, values, minlength=rows * cols)
+    acc = cv2.GaussianBlur(acc.reshape(rows, cols, 3), (0, 0), max(1.0, _FIELD_SIGMA / s))
+    acc = acc.reshape(-1, 3)
+    weight = np.maximum(acc[:, 2], np.float32(1e-6))
+    field = np.empty((rows * cols, 2), np.float32)
+    for c in (0, 1):                    # (one strided division per channel: the fast way)
+        np.divide(acc[:, c], weight, out=field[:, c])
+    return field.reshape(rows, cols, 2)
 
 
 def _neighbour_moves(splat, points, moves, trusted):
@@ -803,11 +819,9 @@ def _warp(image, image_origin, field, origin):
     image_origin)`` for a displacement ``field (h, w, 2)`` (pixels)."""
     h, w = field.shape[:2]
     shift = origin - image_origin
-    grid = np.stack(np.meshgrid(np.arange(w, dtype=np.float32) + shift[0],
-                                np.arange(h, dtype=np.float32) + shift[1]), axis=-1)
-    where = grid + field
-    return cv2.remap(image, where[..., 0], where[..., 1], cv2.INTER_LINEAR,
-                     borderMode=cv2.BORDER_REPLICATE)
+    across = field[..., 0] + (np.arange(w, dtype=np.float32) + shift[0])[None, :]
+    down = field[..., 1] + (np.arange(h, dtype=np.float32) + shift[1])[:, None]
+    return cv2.remap(image, across, down, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
 
 def _normalise(grey, sigma=_NORM_SIGMA):
