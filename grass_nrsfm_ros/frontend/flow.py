@@ -641,19 +641,25 @@ def sample(image, points, interpolation=cv2.INTER_LINEAR):
 _OFFSETS = np.stack(np.meshgrid(np.arange(-_PATCH_RADIUS, _PATCH_RADIUS + 1, 2),
                                 np.arange(-_PATCH_RADIUS, _PATCH_RADIUS + 1, 2)),
                     axis=-1).reshape(-1, 2).astype(np.float32)        # (n, 2), every 2 px
+_OFFSETS_U, _OFFSETS_V = np.ascontiguousarray(_OFFSETS[:, 0]), np.ascontiguousarray(_OFFSETS[:, 1])
+_PATCH_GROUP = 32                  # points per row of the patch sampling's remap maps
 
 
 def _centred_patches(grey, points):
     """``(P, n)`` float32 zero-mean bilinear patches of ``grey`` around ``points (P, 2)``
-    (11 x 11 pixels sampled every 2; one row of the remap maps per point, in chunks that
-    OpenCV's remap takes)."""
-    points = points.astype(np.float32)
-    patches = np.zeros((len(points), len(_OFFSETS)), np.float32)
-    for start in range(0, len(points), _REMAP_ROWS):
-        chunk = points[start:start + _REMAP_ROWS]
-        patches[start:start + len(chunk)] = cv2.remap(
-            grey, chunk[:, :1] + _OFFSETS[None, :, 0], chunk[:, 1:] + _OFFSETS[None, :, 1],
-            cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    (11 x 11 pixels sampled every 2; the remap maps hold ``_PATCH_GROUP`` points per row,
+    in chunks of rows that OpenCV's remap takes)."""
+    n, k = len(points), len(_OFFSETS)
+    rows = max(-(-n // _PATCH_GROUP), 1)
+    across = np.zeros((rows * _PATCH_GROUP, 1), np.float32)
+    down = np.zeros((rows * _PATCH_GROUP, 1), np.float32)
+    across[:n, 0], down[:n, 0] = points[:, 0], points[:, 1]
+    across = (across + _OFFSETS_U).reshape(rows, _PATCH_GROUP * k)
+    down = (down + _OFFSETS_V).reshape(rows, _PATCH_GROUP * k)
+    patches = np.concatenate([cv2.remap(grey, across[r:r + _REMAP_ROWS], down[r:r + _REMAP_ROWS],
+                                        cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+                              for r in range(0, rows, _REMAP_ROWS)])
+    patches = patches.reshape(-1, k)[:n].astype(np.float32)
     return patches - patches.mean(axis=1, keepdims=True)
 
 
