@@ -14,10 +14,12 @@ depths; the kept round's input depths and the mean of input and output; lowest f
 lowest edge-length variation of the output shapes ``Z (x, y, 1)``).
 ``warm``: rounds 2-6 warm-started from the previous round's result (``WarmStart(R, S)``, or
 ``R`` only with ``--warm R``). ``relax``: each round solves on ``(1 - a) delta_in + a
-delta_out`` (``--relax 0.5``). ``truth``: one solve on the true weak-perspective image
+delta_out`` (``--relax 0.5``; ``--start never``: round 0 without the inextensible stage).
+``truth``: one solve on the true weak-perspective image
 ``x (1 + delta_true)`` under inextensible auto / never / always.
 
     python -m bench.records.r0716 [--what rounds,warm,relax,truth] [--names face_4,face_6]
+    python -m bench.records.r0716 --what relax --start never
 """
 import argparse
 import re
@@ -115,12 +117,17 @@ def rounds(name, n_rounds):
     print('  ' + ', '.join(f'{k} {v:.3f}' for k, v in picks.items()), flush=True)
 
 
-def iterate(name, warm=None, relax=1.0, n_rounds=6):
-    """Round 0, round 1's sign trial as shipped, then rounds 2..n_rounds with a warm start or
-    a relaxed input; prints each round's ratio and the lowest residual's over 1-4 / all."""
+def iterate(name, warm=None, relax=1.0, n_rounds=6, start='auto'):
+    """Round 0 (inextensible ``start``), round 1's sign trial as shipped, then rounds
+    2..n_rounds with a warm start or a relaxed input; prints each round's ratio, the lowest
+    residual's over 1-4 / all, and the rounds' inextensible checks."""
     S, x, ortho = sequence(name)
     chain = Chain(warm)
-    delta = pp.centred_depths(chain.fit(x).S)
+    if start == 'auto':
+        delta = pp.centred_depths(chain.fit(x).S)
+    else:
+        delta = pp.centred_depths(GrassmannNRSfM(inextensible=start).fit(x).S)
+        chain.log.append(f'{start} start')
     trials = [pp.PerspectiveNRSfM._round(chain, x, s * delta, 1) for s in (1.0, -1.0)]
     trials.sort(key=lambda t: (not np.isfinite(t[0].change), t[0].fit, t[0].residual))
     record, new, result = trials[0]
@@ -137,8 +144,8 @@ def iterate(name, warm=None, relax=1.0, n_rounds=6):
     k4 = min(range(4), key=lambda k: rows[k][0])
     kn = min(range(len(rows)), key=lambda k: rows[k][0])
     cells = ' '.join(f'{i + 1}:{v:.3f}/{r:.2e}' for i, (v, (r, _)) in enumerate(zip(e, rows)))
-    print(f'{name} warm {warm} relax {relax}: lowest residual 1-4 {e[k4]:.3f}, 1-{n_rounds} '
-          f'{e[kn]:.3f}; {cells}', flush=True)
+    print(f'{name} warm {warm} relax {relax} start {start}: lowest residual 1-4 {e[k4]:.3f}, '
+          f'1-{n_rounds} {e[kn]:.3f}; {cells}; checks {" ".join(chain.log)}', flush=True)
 
 
 def truth(name):
@@ -159,6 +166,7 @@ def main(argv=None):
     parser.add_argument('--rounds', type=int, default=7)
     parser.add_argument('--warm', default='RS')
     parser.add_argument('--relax', type=float, default=0.5)
+    parser.add_argument('--start', default='auto', help="round 0's inextensible setting")
     args = parser.parse_args(argv)
     for what in args.what.split(','):
         for name in args.names.split(','):
@@ -167,7 +175,7 @@ def main(argv=None):
             elif what == 'warm':
                 iterate(name, warm=args.warm)
             elif what == 'relax':
-                iterate(name, relax=args.relax)
+                iterate(name, relax=args.relax, start=args.start)
             elif what == 'truth':
                 truth(name)
 
