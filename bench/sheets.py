@@ -35,9 +35,9 @@ a 40 x 40 grid, 60 frames), so it is outside the assumption of every inextensibl
 5e-4; record 0713). 'bending' is isometric too.
 
 Writes ``bench/results/sheets.json``. ``python -m bench.sheets [--smoke|--full] [--kinds
-flag,...]``: with ``--kinds`` only those kinds' synthetic and rendered sheets run, and their
-rows replace the same kinds' rows of the JSON already there (the others, the real subsets
-included, are kept; ``runs`` in the JSON and the table's note say which rows came from which
+flag,...]``: with ``--kinds`` only those kinds' synthetic and rendered sheets run (``real``: the
+real subsets), and their rows replace the same kinds' rows of the JSON already there (the
+others are kept; ``runs`` in the JSON and the table's note say which rows came from which
 run). ``--options sheet_transport,...`` with ``--kinds``: only those options run, on those
 kinds' sheets under the projections they apply to, and their figures are added to the rows
 already there (the rows' other figures are kept).
@@ -217,7 +217,9 @@ def with_options(mode, rows, kinds, only):
 def run(mode, kinds=None, only=None):
     """Measure every option on the sheets (``kinds``: only those kinds' synthetic and
     rendered sheets, merged into the JSON already there)."""
-    rows = [case(*seq, only=only) for seq in sequences(mode, kinds or KINDS, real=kinds is None)]
+    rows = [case(*seq, only=only) for seq in
+            sequences(mode, [k for k in kinds or KINDS if k in KINDS],
+                      real=kinds is None or 'real' in kinds)]
     if only is not None:
         rows, runs = with_options(mode, [r for r in rows if r['seconds_cpu']], kinds, only)
     elif kinds is None:
@@ -255,16 +257,17 @@ def main(argv=None):
     size = parser.add_mutually_exclusive_group()
     size.add_argument('--smoke', action='store_true')
     size.add_argument('--full', action='store_true')
-    parser.add_argument('--kinds', help=f"comma-separated, of {', '.join(KINDS)}: only their "
-                        'sheets, merged into the JSON already there')
+    parser.add_argument('--kinds', help=f"comma-separated, of {', '.join(KINDS)}, real: only "
+                        'their sheets (real: the real subsets), merged into the JSON already '
+                        'there')
     parser.add_argument('--options', help=f"comma-separated, of {', '.join(OPTIONS)} (with "
                         '--kinds): only these options, added to the rows already there')
     args = parser.parse_args(argv)
     kinds = only = None
     if args.kinds:
         kinds = tuple(k for k in args.kinds.split(',') if k)
-        if not set(kinds) <= set(KINDS):
-            parser.error(f'--kinds: choose from {", ".join(KINDS)}')
+        if not set(kinds) <= {*KINDS, 'real'}:
+            parser.error(f'--kinds: choose from {", ".join(KINDS)}, real')
     if args.options:
         only = tuple(o for o in args.options.split(',') if o)
         if not set(only) <= set(OPTIONS) or kinds is None:

@@ -338,7 +338,9 @@ def _max_depth_report(result, P):
                           iterations=int(info['rounds']))
     report.notes.append(f'maximum-depth heuristic on {result.anchors.size} of {P} tracks '
                         f"(the others interpolated): {info['rounds']} cutting-plane rounds, "
-                        f"worst cone violation {info['violation']:.3g} (docs/decisions/0709)")
+                        f"worst cone violation {info['violation']:.3g} (docs/decisions/0709)" +
+                        ('; its depths then fitted to its lengths as equalities '
+                         '(docs/decisions/0720)' if 'refine_seconds_cpu' in info else ''))
     return report
 
 
