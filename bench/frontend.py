@@ -39,7 +39,7 @@ from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
 from . import common
 
 RECONSTRUCTION_POINTS = 1500         # complete tracks given to the solver (evenly subsampled)
-CALIBRATION_RUNS = 3                 # untimed runs that size the timing region
+CALIBRATION_RUNS = 5                 # untimed runs that size the timing region
 FACING_DEGREES = 75.0                # beyond this from face-on a point counts as edge-on
 
 
@@ -183,20 +183,24 @@ def timing(images, mask, method, target=5000, options=None, repeats=3):
     """Milliseconds per frame on one OpenCV thread with at least ``target`` tracks on average:
     the region is ``mask`` at the step that holds at least twice ``target`` grid points, its
     lowest rows cut until it holds ``target``, then enlarged by the share of tracks an untimed
-    run lost on average (at most ``CALIBRATION_RUNS`` runs); the median of ``repeats`` runs
-    (each a median over frames)."""
+    run lost on average, by whole rows, until a run averages ``target`` (at most
+    ``CALIBRATION_RUNS`` runs); the median of ``repeats`` runs (each a median over frames)."""
     step = max(1, int(np.sqrt(mask.sum() / (2 * target))))
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)
     try:
-        points = target
-        for _ in range(CALIBRATION_RUNS):
-            region = _cut_rows(mask, step, points)
+        points, region, runs = target, None, 0
+        while runs < CALIBRATION_RUNS:
+            cut = _cut_rows(mask, step, points)
+            if region is not None and (cut == region).all():
+                points *= 1.01                  # not a grid point more yet: grow again
+                continue
+            region, runs = cut, runs + 1
             frames, _ = run_tracker(images, method, step, region, **(options or {}))
             mean = np.mean([len(fr.ids) for fr in frames])
             if mean >= target or (region == mask).all():
                 break
-            points = points * target / mean + mask.shape[1] / step     # and a grid row more
+            points = points * target / mean
         runs = [run_tracker(images, method, step, region, **(options or {}))
                 for _ in range(repeats)]
     finally:
