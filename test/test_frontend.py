@@ -117,6 +117,18 @@ def test_occluded_tracks_fail_the_check():
     assert (inside & np.isin(out.ids, first.ids)).sum() < 0.05 * (120 // 8) ** 2
 
 
+def occlude_a_patch(tracker, base):
+    """Frame 0 of ``base``, then a frame with a 60 x 60 patch of other texture: ``(first,
+    occluded image, hidden, inside)``, ``inside (P,)``: frame 0's tracks well inside it."""
+    first = tracker.track(shifted(base, 0, 0))
+    occluded = shifted(base, 1, 1)
+    occluded[90:150, 130:190] = shifted(texture(seed=5), 0, 0)[90:150, 130:190]
+    hidden = tracker.track(occluded)
+    inside = (first.uv[:, 0] > 140) & (first.uv[:, 0] < 180) & (first.uv[:, 1] > 100) & \
+        (first.uv[:, 1] < 140)
+    return first, occluded, hidden, inside
+
+
 @pytest.mark.parametrize('max_misses', [0, 1])
 def test_a_track_failing_once_is_hidden_and_dies_on_the_next_failure(max_misses):
     """A small patch occluded in one frame: its tracks fail, are hidden (not output) and
@@ -124,12 +136,7 @@ def test_a_track_failing_once_is_hidden_and_dies_on_the_next_failure(max_misses)
     (0)."""
     base = texture()
     tracker = DenseTracker(step=8, max_misses=max_misses)
-    first = tracker.track(shifted(base, 0, 0))
-    occluded = shifted(base, 1, 1)
-    occluded[90:150, 130:190] = shifted(texture(seed=5), 0, 0)[90:150, 130:190]
-    hidden = tracker.track(occluded)
-    inside = (first.uv[:, 0] > 140) & (first.uv[:, 0] < 180) & (first.uv[:, 1] > 100) & \
-        (first.uv[:, 1] < 140)
+    first, occluded, hidden, inside = occlude_a_patch(tracker, base)
     assert inside.sum() >= 16 and not np.isin(first.ids[inside], hidden.ids).any()
     assert hidden.counts['failed'] >= inside.sum()
     assert hidden.counts['missed'] == (hidden.counts['failed'] if max_misses else 0)
@@ -153,12 +160,7 @@ def test_a_hidden_track_dies_when_its_keyframe_is_retired():
     keeps a second keyframe for its hidden tracks."""
     base = texture()
     tracker = DenseTracker(step=8, max_misses=1, reanchor_every=1)
-    first = tracker.track(shifted(base, 0, 0))
-    occluded = shifted(base, 1, 1)
-    occluded[90:150, 130:190] = shifted(texture(seed=5), 0, 0)[90:150, 130:190]
-    hidden = tracker.track(occluded)
-    inside = (first.uv[:, 0] > 140) & (first.uv[:, 0] < 180) & (first.uv[:, 1] > 100) & \
-        (first.uv[:, 1] < 140)
+    first, _, hidden, inside = occlude_a_patch(tracker, base)
     assert hidden.counts['reanchored'] and hidden.counts['failed'] >= inside.sum() >= 16
     assert hidden.counts['missed'] == 0 and hidden.counts['lost'] >= inside.sum()
     assert len(np.unique(tracker._key)) == 1
