@@ -796,10 +796,10 @@ def _coarse_field(splat, moves, use=None):
         acc[:, c] = np.bincount(index, values, minlength=rows * cols)
     acc = cv2.GaussianBlur(acc.reshape(rows, cols, 3), (0, 0), max(1.0, _FIELD_SIGMA / s))
     acc = acc.reshape(-1, 3)
-    weight = np.maximum(acc[:, 2], np.float32(1e-6))
+    total = np.maximum(acc[:, 2], np.float32(1e-6))       # the splat weight at each node
     field = np.empty((rows * cols, 2), np.float32)
     for c in (0, 1):                    # (one strided division per channel: the fast way)
-        np.divide(acc[:, c], weight, out=field[:, c])
+        np.divide(acc[:, c], total, out=field[:, c])
     return field.reshape(rows, cols, 2)
 
 
