@@ -50,6 +50,7 @@ from grass_nrsfm_ros.windowing import FrameError
 POINTCLOUD2 = 'sensor_msgs/msg/PointCloud2'
 LOG_PERIOD_S = 10.0          # the same problem is logged at most once per period
 ACK_TIMEOUT_S = 2.0          # longest wait for subscribers to take a burst of clouds
+ACK_POLL_S = 0.005           # the wait polls this often (rclpy's blocking wait holds the GIL)
 GIL_SWITCH_S = 0.0005        # the mapping's threads yield the GIL this often (record 0400)
 CAMERA_INFO_WAIT_S = 1.0     # tracks wait at most this long (stamps) for a silent camera_info
 LEVELS = {'ok': DiagnosticStatus.OK, 'warn': DiagnosticStatus.WARN}
@@ -217,10 +218,20 @@ class ReconstructionNode(Node):
         depth = max(1, publisher.qos_profile.depth)
         for i, result in enumerate(results):
             if i and i % depth == 0:
-                publisher.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT_S))
+                self._wait_acked(publisher)
             self._publish(publisher, result)
         if results and self.mesh_pub is not None and not self.stopping.is_set():
             self._publish_mesh(results[-1])
+
+    def _wait_acked(self, publisher):
+        """Wait up to ACK_TIMEOUT_S for ``publisher``'s subscribers to acknowledge what it
+        sent, polling: rclpy's ``wait_for_all_acked`` with a timeout holds the GIL, and so
+        would stop the tracking for as long (docs/decisions/0441)."""
+        deadline = time.monotonic() + ACK_TIMEOUT_S
+        while not publisher.wait_for_all_acked(Duration()):
+            if time.monotonic() > deadline or self.stopping.is_set():
+                return
+            time.sleep(ACK_POLL_S)
 
     def _publish(self, publisher, result):
         if self.stopping.is_set():
