@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from grass_nrsfm_ros.frontend import scenes
-from grass_nrsfm_ros.frontend.flow import sample
+from grass_nrsfm_ros.frontend.imaging import sample
 
 
 def square(z, half, centre=(0.0, 0.0), n=2):

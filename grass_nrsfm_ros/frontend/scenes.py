@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .flow import sample
+from .imaging import sample
 from ..nrsfm import faces, synthetic
 
 DEG = np.pi / 180.0
