@@ -47,3 +47,35 @@ def test_drifting_tracks_are_weighed_down_and_do_not_pull_the_shapes():
     assert e3d(result.S, seq.S) <= 1.15 * clean
     plain = e3d(GrassmannNRSfM().fit(W).S, seq.S)
     assert e3d(result.S, seq.S) < 0.9 * plain
+
+
+def test_weighed_down_tracks_take_their_3d_from_their_neighbours():
+    """A weighed-down track's 3D follows its data, drift included (record 0805); after the
+    solve it is taken from its kept neighbours over its trusted frames (record 0811). The drift
+    case of bench.missing on articulated, seed 4 (60 x 400, 1 px noise, 20 tracks drifting up
+    to 20 px): the drifting tracks' e3D 0.0868 before, 0.0492 measured (the clean tracks' solve
+    0.0210 on them); the ratio to the clean tracks 1.237 before, 1.003 measured."""
+    seq = make_sequence('articulated', n_frames=60, n_points=400, noise=0.005, seed=4)
+    W, drifting = drifting_tracks(seq.W, 0.05, 20.0, np.random.default_rng(204))
+    result = GrassmannNRSfM(robust='cauchy').fit(W)
+    assert e3d(result.S[:, drifting], seq.S[:, drifting]) <= 0.06
+    assert any("tracks' 3D from their kept neighbours" in note for note in result.report.notes)
+
+
+def test_refit_takes_a_drifting_column_from_the_neighbours():
+    """robust.refit: the kept tracks' columns unchanged; a track drifting from frame 10 on (to
+    20 px at the last frame, 1 px noise) gets its column from its neighbours over its first 20
+    frames: 3D error 0.022 against 0.269 for the column that followed the drift."""
+    seq = make_sequence('bending', n_frames=30, n_points=200, noise=0.005, seed=2)
+    F = 30
+    W = seq.W.copy()
+    ramp = np.clip((np.arange(F) - 10) / (F - 11), 0.0, 1.0)
+    W[0::2, 7] += 0.1 * np.abs(seq.W).max() * ramp
+    S = seq.S.copy()
+    S.reshape(F, 3, -1)[:, 0, 7] += (W - seq.W)[0::2, 7]       # its x follows the drift
+    weights = np.ones(200)
+    weights[7] = 0.3
+    out = robust.refit(S, W, weights)
+    assert np.array_equal(np.delete(out, 7, axis=1), np.delete(S, 7, axis=1))
+    before = np.linalg.norm(S[:, 7] - seq.S[:, 7])
+    assert np.linalg.norm(out[:, 7] - seq.S[:, 7]) < 0.2 * before

@@ -97,7 +97,9 @@ class GrassmannNRSfM:
         docs/decisions/0802).
 
         The chain: rotations -> rotation check -> shape pass (thinning -> ADMM -> refinement
-        -> fill) -> registration (the shape pass again with registered rotations)."""
+        -> fill) -> registration (the shape pass again with registered rotations); with
+        ``robust`` the weighed-down tracks' 3D then from their kept neighbours
+        (:func:`.stages.robust.refit`)."""
         values = self.get_params()
         if beta_max is not None:
             values['beta_max'] = beta_max
@@ -135,7 +137,9 @@ class GrassmannNRSfM:
                 result = self._registered(problem, params, result, progress)
             if track_weights is not None:
                 result.report.downweighted_tracks = report.downweighted_tracks
-                result = replace(result, track_weights=track_weights)
+                result = replace(result, track_weights=track_weights,
+                                 S=robust.refit(result.S, problem.W, track_weights,
+                                                result.report))
         rounds = REFILL_ROUNDS if refill_rounds is None else int(refill_rounds)
         if problem.mask is not None and rounds > 0:
             result = self._refilled(problem, result, progress, beta_max, rounds)

@@ -10,11 +10,15 @@ tail). They multiply the data-term weights of the whole solve (:meth:`Problem.we
 The rotations are then estimated on the tracks no weight touched (:func:`kept_tracks`, read by
 :func:`.rotations.core_tracks`, record 0805): Dai's factorisation reads every track it is given,
 and a drifting one moves its rank-3K span.
-Report: ``downweighted_tracks`` (indices), a note; the result's ``track_weights``.
+After the solve (:func:`refit`, record 0811) each weighed-down track's 3D trajectory is taken
+from its kept neighbours instead of from its own data: a weighed-down track's shape still
+follows its data (record 0805), drifted entries included.
+Report: ``downweighted_tracks`` (indices), notes; the result's ``track_weights``.
 """
 import numpy as np
 
-from ..measurement import economy_svd
+from ..density import FILL_NEIGHBOURS
+from ..measurement import centre, economy_svd
 
 NAME = 'robust'
 #: rank of the approximation the residuals are taken against (record 0801)
@@ -25,6 +29,18 @@ ROUNDS = 3
 THRESHOLD = 3.0
 #: the rotations read the kept tracks only while they are at least this share of all
 KEPT_SHARE = 0.5
+#: a weighed-down track's frame is trusted while its residual to its neighbours' combination is
+#: at most this many robust deviations of the kept tracks' own residuals (record 0811)
+TRUST = 3.0
+#: rounds of neighbours and trusted frames
+TRUST_ROUNDS = 5
+#: kept tracks the residuals' scale is measured on (evenly spaced)
+SCALE_SAMPLE = 40
+#: Tikhonov regularisation of the neighbours' weights, relative to the trace (record 0811)
+NEIGHBOUR_REGULARISATION = 1e-3
+#: the final weights are fitted on every frame beside a drift ``sum_l v_l (f / (F - 1))^l``,
+#: l = 1..DRIFT_ORDER, one per image axis: zero at the first frame, slow (record 0811)
+DRIFT_ORDER = 2
 
 
 def applies(problem, params):
@@ -83,3 +99,87 @@ def run(problem, params, report):
     if down.size == 0:
         return problem, weights
     return problem.weighted(weights), weights
+
+
+def neighbours(Wc, keep, track, rows):
+    """``(nbrs: (k,) indices into P, weights: (k,) summing to 1)``: the FILL_NEIGHBOURS columns
+    of ``keep: (P',)`` nearest to column ``track`` of ``Wc: (2F, P)`` over ``rows: (2F,)`` bool,
+    and the weights whose combination of them reproduces it there best (the reconstruction
+    weights of :func:`.density.fill_dropped`, NEIGHBOUR_REGULARISATION)."""
+    X, x = Wc[rows][:, keep], Wc[rows, track]
+    k = min(FILL_NEIGHBOURS, keep.size)
+    near = np.argpartition(((X - x[:, None]) ** 2).sum(axis=0), k - 1)[:k]
+    diff = X[:, near] - x[:, None]
+    G = diff.T @ diff
+    G += (NEIGHBOUR_REGULARISATION * np.trace(G) + 1e-12) * np.eye(k)
+    w = np.linalg.solve(G, np.ones(k))
+    return keep[near], w / w.sum()
+
+
+def drift_weights(Wc, nbrs, track):
+    """``(k,)`` weights summing to 1: the combination of the columns ``nbrs: (k,)`` of ``Wc: (2F,
+    P)`` that, beside a drift of DRIFT_ORDER (powers of time, zero at the first frame, each image
+    axis its own coefficients), reproduces column ``track`` over every frame best
+    (NEIGHBOUR_REGULARISATION on the weights; the equality by its Lagrange multiplier)."""
+    F, k = Wc.shape[0] // 2, nbrs.size
+    time = (np.arange(F) / max(F - 1, 1))[:, None] ** np.arange(1, DRIFT_ORDER + 1)   # (F, L)
+    drift = np.zeros((2 * F, 2 * DRIFT_ORDER))
+    drift[0::2, :DRIFT_ORDER], drift[1::2, DRIFT_ORDER:] = time, time
+    M = np.hstack([Wc[:, nbrs], drift])
+    diff = Wc[:, nbrs] - Wc[:, [track]]
+    A = M.T @ M
+    A[:k, :k] += (NEIGHBOUR_REGULARISATION * np.trace(diff.T @ diff) + 1e-12) * np.eye(k)
+    ones = np.r_[np.ones(k), np.zeros(2 * DRIFT_ORDER)]
+    kkt = np.block([[A, ones[:, None]], [ones[None], np.zeros((1, 1))]])
+    return np.linalg.solve(kkt, np.r_[M.T @ Wc[:, track], 1.0])[:k]
+
+
+def refit(S, W, weights, report=None):
+    """``S: (3F, P)`` with the columns of the weighed-down tracks (``weights: (P,)`` below 1)
+    replaced by a combination of their kept neighbours' columns (record 0811). The neighbours
+    (:func:`neighbours`): those that reproduce the track's image trajectory in ``W: (2F, P)``
+    (complete: unseen entries completed) over its trusted frames, those whose distance from
+    the combination is within TRUST robust deviations of the kept tracks' own (measured on
+    SCALE_SAMPLE kept tracks against their other kept neighbours); trusted frames and
+    neighbours alternated up to TRUST_ROUNDS times, from every frame. Their weights
+    (:func:`drift_weights`): fitted on every frame beside a slow drift that starts at zero.
+    A track with every frame trusted keeps its column. A drift late in a track leaves its
+    early frames trusted, and its 3D follows its neighbours rather than the drifted data.
+    ``S`` itself with no more than 2 SCALE_SAMPLE kept tracks. ``report``: a note with the
+    tracks replaced and their trusted frames."""
+    down = np.flatnonzero(weights < 1.0)
+    keep = np.flatnonzero(weights >= 1.0)
+    F = W.shape[0] // 2
+    if down.size == 0 or keep.size <= 2 * SCALE_SAMPLE:
+        return S
+    Wc = centre(W)[0]
+    every = np.ones(2 * F, dtype=bool)
+
+    def distances(track, nbrs, w):
+        return np.linalg.norm((Wc[:, track] - Wc[:, nbrs] @ w).reshape(F, 2), axis=1)
+
+    sample = keep[np.linspace(0, keep.size - 1, SCALE_SAMPLE).round().astype(int)]
+    others = np.setdiff1d(keep, sample)
+    own = np.concatenate([distances(j, *neighbours(Wc, others, j, every)) for j in sample])
+    threshold = TRUST * 1.4826 * np.median(own)
+    out, trusted_frames = S.copy(), []
+    for track in down:
+        trusted = np.ones(F, dtype=bool)
+        for _ in range(TRUST_ROUNDS):
+            nbrs, w = neighbours(Wc, keep, track, np.repeat(trusted, 2))
+            r = distances(track, nbrs, w)
+            again = r <= max(threshold, np.sort(r)[min(2, F - 1)])
+            if np.array_equal(again, trusted):
+                break
+            trusted = again
+        trusted_frames.append(int(trusted.sum()))
+        if not trusted.all():
+            out[:, track] = S[:, nbrs] @ drift_weights(Wc, nbrs, track)
+    if report is not None:
+        trusted_frames = np.array(trusted_frames)
+        moved = trusted_frames[trusted_frames < F]
+        report.notes.append(f"robust: {moved.size} of the {down.size} weighed-down tracks' 3D "
+                            'from their kept neighbours' + (
+                                f' (trusted frames: median {np.median(moved):.0f} of {F}, '
+                                f'fewest {moved.min()})' if moved.size else ''))
+    return out
