@@ -277,6 +277,7 @@ class ReconstructionNode(Node):
             last_solve=self.last_solve)
         values = diagnostics.values(snap)
         values.update({'tracks publishers': self.input.subscription.get_publisher_count(),
+                       'camera_info publishers': self.info_sub.get_publisher_count(),
                        'points subscribers': self.points_pub.get_subscription_count(),
                        'input reliability': self.input.reliability.name.lower(),
                        'resets requested': self.counts.get('resets_requested', 0)})

@@ -3,6 +3,7 @@ published frame through the pinhole (``K [X/Z, Y/Z, 1]`` = its pixels, each fram
 ``scene_depth``), a change of intrinsics a new sequence, ``reconstruct BAG`` reading the bag's
 camera_info, and the ``camera`` parameter. Pinhole ground truth: a synthetic inflating surface
 2.5 units in front of the camera."""
+import time
 import warnings
 
 import numpy as np
@@ -242,9 +243,12 @@ def test_node_takes_k_from_camera_info(ros_env, tmp_path, pinhole):
     log = tmp_path / 'node.log'
     with node_with_feeder(ros_env, log, ['-p', 'window_size:=20', '-p', 'window_stride:=10'],
                           points_depth=30) as (proc, feeder):
+        created = time.monotonic()
         info_pub = feeder.node.create_publisher(CameraInfo, 'camera_info',
                                                 qos_profile_sensor_data)
-        assert feeder.wait_for(lambda: info_pub.get_subscription_count() > 0, 20)
+        # matching is not symmetric: wait until the node itself reports the publisher
+        assert feeder.wait_for(lambda: info_pub.get_subscription_count() > 0 and int(
+            feeder.node_reports(created).get('camera_info publishers', 0)) >= 1, 20)
         for header, tracks in paced(node_frames(pinhole, 30), 1 / 30):    # a camera's rate
             info_pub.publish(CameraInfo(header=header, width=640, height=480,
                                         k=[FX, 0.0, CX, 0.0, FY, CY, 0.0, 0.0, 1.0]))
@@ -283,9 +287,12 @@ def test_a_silent_camera_info_publisher_holds_tracks_back_one_second(
         tracks.header.stamp = header.stamp
     with node_with_feeder(ros_env, log, ['-p', 'window_size:=20', '-p', 'window_stride:=10'],
                           points_depth=30) as (proc, feeder):
+        created = time.monotonic()
         info_pub = feeder.node.create_publisher(CameraInfo, 'camera_info',
                                                 qos_profile_sensor_data)
-        assert feeder.wait_for(lambda: info_pub.get_subscription_count() > 0, 20)
+        # matching is not symmetric: wait until the node itself reports the publisher
+        assert feeder.wait_for(lambda: info_pub.get_subscription_count() > 0 and int(
+            feeder.node_reports(created).get('camera_info publishers', 0)) >= 1, 20)
         publish(feeder, [tracks for _, tracks in frames])
         assert feeder.wait_for(lambda: len(feeder.points) >= 5, 60), log.read_text()
         assert feeder.wait_for(
