@@ -122,9 +122,17 @@ def _reconstruction_weights(Wc, keep, dropped, k=FILL_NEIGHBOURS):
     for a in range(0, dropped.size, step):
         part = slice(a, a + step)
         diff = kept_rows[nbrs[part]] - dropped_rows[part][:, None, :]      # (d, k, 2F)
-        G = diff @ diff.transpose(0, 2, 1)
-        G += FILL_REGULARISATION * np.trace(G, axis1=1, axis2=2)[:, None, None] * np.eye(k)
-        G += 1e-12 * np.eye(k)
-        w = np.linalg.solve(G, np.ones((G.shape[0], k, 1)))[..., 0]
-        weights[part] = w / w.sum(axis=1, keepdims=True)
+        weights[part] = affine_weights(diff)
     return nbrs, weights
+
+
+def affine_weights(diff, regularisation=FILL_REGULARISATION):
+    """``(d, k)`` weights summing to 1, each row the affine combination of ``k`` neighbours
+    nearest its point: ``diff: (d, k, n)`` the neighbours minus the point; the local Gram matrix
+    regularised by ``regularisation`` times its trace (locally linear reconstruction)."""
+    k = diff.shape[1]
+    G = diff @ diff.transpose(0, 2, 1)
+    G += regularisation * np.trace(G, axis1=1, axis2=2)[:, None, None] * np.eye(k)
+    G += 1e-12 * np.eye(k)
+    w = np.linalg.solve(G, np.ones((G.shape[0], k, 1)))[..., 0]
+    return w / w.sum(axis=1, keepdims=True)

@@ -17,7 +17,7 @@ Report: ``downweighted_tracks`` (indices), notes; the result's ``track_weights``
 """
 import numpy as np
 
-from ..density import FILL_NEIGHBOURS
+from ..density import affine_weights, FILL_NEIGHBOURS
 from ..measurement import centre, economy_svd
 
 NAME = 'robust'
@@ -104,16 +104,13 @@ def run(problem, params, report):
 def neighbours(Wc, keep, track, rows):
     """``(nbrs: (k,) indices into P, weights: (k,) summing to 1)``: the FILL_NEIGHBOURS columns
     of ``keep: (P',)`` nearest to column ``track`` of ``Wc: (2F, P)`` over ``rows: (2F,)`` bool,
-    and the weights whose combination of them reproduces it there best (the reconstruction
-    weights of :func:`.density.fill_dropped`, NEIGHBOUR_REGULARISATION)."""
+    and the weights whose combination of them reproduces it there best
+    (:func:`.density.affine_weights`, NEIGHBOUR_REGULARISATION)."""
     X, x = Wc[rows][:, keep], Wc[rows, track]
     k = min(FILL_NEIGHBOURS, keep.size)
     near = np.argpartition(((X - x[:, None]) ** 2).sum(axis=0), k - 1)[:k]
-    diff = X[:, near] - x[:, None]
-    G = diff.T @ diff
-    G += (NEIGHBOUR_REGULARISATION * np.trace(G) + 1e-12) * np.eye(k)
-    w = np.linalg.solve(G, np.ones(k))
-    return keep[near], w / w.sum()
+    diff = (X[:, near] - x[:, None]).T[None]                          # (1, k, rows)
+    return keep[near], affine_weights(diff, NEIGHBOUR_REGULARISATION)[0]
 
 
 def drift_weights(Wc, nbrs, track):
