@@ -1,31 +1,13 @@
 """Dense 2D tracks anchored to keyframes (OpenCV optical flow, no ROS).
 
-:class:`DenseTracker` follows the points of a grid of ``step`` pixels inside a region. Each
-track is anchored to a *keyframe* (a past frame where its point is known) and is measured
-against it in every frame, so its error does not grow frame by frame:
-
-1. prediction: DIS optical flow from the last frame moves each track (in the box around the
-   tracks);
-2. refinement, per keyframe: the current frame is warped into the keyframe by the smooth
-   displacement field of that keyframe's predicted tracks (so the turn and deformation since
-   the keyframe are undone), then locally normalised (mean removed, contrast equalised:
-   blind to shading gain and offset; in the keyframe's geometry, like the keyframe), and
-   Lucas-Kanade from the normalised keyframe measures what the field missed at each track;
-   then the other way round (the keyframe warped into the frame and normalised there, LK
-   from it to the normalised frame), and the track is the mean of the two estimates; a
-   track whose check (3) is weak leans on the smooth field of its neighbours' moves;
-3. checks: a ZNCC of each track's patch against its keyframe patch, taken in the warped frame
-   on slightly blurred images (optionally a forward-backward check); occlusion shows up as a
-   failed check. A track that fails is hidden (not in the output, kept on its keyframe,
-   moved by the prediction) and dies when it fails ``max_misses`` + 1 frames in a row, or
-   when its keyframe is retired while it is hidden (so one keyframe serves every frame).
-
-A track whose patch has changed (ZNCC below ``reanchor_zncc``) is *stale*: when enough
-tracks are stale, the frame becomes a keyframe and they (with ``max_keyframes`` 1, the
-default: every track) are re-anchored to it, keeping their ids. When too much
-of the region has no track, the frame becomes a keyframe and new tracks are born on the
-region's uncovered grid cells. A track dies when it leaves the image or fails its checks. Ids are
-never reused within a sequence (until :meth:`reset`).
+:class:`DenseTracker` owns the tracks of one image stream: it follows the points of a grid of
+``step`` pixels inside a region, each anchored to a *keyframe* (a past frame where its point
+is known) and measured against it in every frame, so its error does not grow frame by frame.
+Per frame: DIS optical flow from the last frame predicts; :class:`~.keyframes.KeyframeRefiner`
+refines and checks against the keyframes; the tracker then hides, kills, re-anchors (a new
+keyframe when enough tracks have changed appearance) and gives birth (where the region is
+uncovered). A track dies when it leaves the image or fails its checks; ids are never reused
+within a sequence (until :meth:`DenseTracker.reset`). The method and why: record 0600.
 
 Shapes and units:
 
@@ -46,14 +28,14 @@ saturated or flat) gives no tracks, warns once and keeps the state, so tracking 
 next good frame.
 """
 from dataclasses import dataclass, field
-from functools import partial
 import warnings
 
 import cv2
 import numpy as np
 
-from . import fields, grid, imaging
+from . import grid, imaging
 from .grid import FrameSizeError
+from .keyframes import Anchors, KeyframeRefiner, make_keyframe
 
 #: flow methods: a DIS preset from the last frame predicts; '+lk' refines against the
 #: keyframe in the frame warped by the tracks' field (the default); '/prev+lk' refines by
@@ -67,24 +49,9 @@ _DIS_PRESETS = {'dis-ultrafast': cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST,
                 'dis-fast': cv2.DISOPTICAL_FLOW_PRESET_FAST,
                 'dis-medium': cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}
 DEFAULT_METHOD = 'dis-fast+lk'
-_MAX_REFINEMENT = 2.0              # px: prediction and its LK refinement disagreeing more: failed
 _STALE_SHARE = 0.02                # a new keyframe when more of the tracks than this are stale
 _KEYFRAME_MARGIN = 24              # px around the tracks where a keyframe is normalised
 _FLOW_MARGIN = 24                  # px around the tracks where DIS last -> current runs
-_WARP_MARGIN = 8                   # px around a keyframe's tracks warped (plus the LK window)
-_INVERSE_STEPS = 3                 # fixed-point steps inverting the field
-_SMOOTH_ZNCC = 0.98              # a track checked below this leans on its neighbours' field
-
-
-@dataclass(frozen=True, eq=False)
-class _Keyframe:
-    """A frame tracks are anchored to: ``grey (H, W) float32``, its
-    :func:`~.imaging.normalise` and that :func:`~.imaging.smoothed` (where the ZNCC check
-    samples)."""
-
-    grey: np.ndarray
-    normalised: np.ndarray
-    smoothed: np.ndarray
 
 
 @dataclass(frozen=True, eq=False)
@@ -161,12 +128,14 @@ class DenseTracker:
         preset = _DIS_PRESETS.get(method.split('+')[0].split('/')[0])
         self._dis_preset = preset
         self._dis = None if preset is None else cv2.DISOpticalFlow.create(preset)
-        self._refine_lk = method.endswith('+lk') or method == 'lk'
-        self._warp = '/prev' not in method
+        warp = '/prev' not in method
         self.lk_levels = lk_levels if lk_levels is not None else (
-            2 if self._dis is None else 1 if not self._warp else 0)
+            2 if self._dis is None else 1 if not warp else 0)
         self.max_keyframes = int(max_keyframes)
-        self._lk = partial(imaging.lucas_kanade, self.lk_window, self.lk_levels)
+        self._refiner = KeyframeRefiner(
+            self.step, self.lk_window, self.lk_levels, warp=warp,
+            refine_lk=method.endswith('+lk') or method == 'lk', predicted=self._dis is not None,
+            min_zncc=self.min_zncc)
         self._next_id = 0
         self._warned = set()
         self.reset()
@@ -176,7 +145,7 @@ class DenseTracker:
     def reset(self):
         """Forget the keyframes and every track; the next frame starts a new sequence (new
         ids continue from the last one: ids are never reused by one tracker)."""
-        self._keyframes = {}          # frame number -> _Keyframe
+        self._keyframes = {}          # frame number -> Keyframe
         self._shape = None            # (H, W) of the sequence
         self._region_ref = None       # (H, W) bool region at the newest keyframe
         self._cells = np.zeros((0, 2), np.int64)    # (G, 2) its grid points
@@ -233,10 +202,12 @@ class DenseTracker:
     def _follow(self, grey, counts):
         """Track the alive tracks into ``grey``; kill, re-anchor, birth."""
         guess = self._predict(grey)
-        uv, zncc, ok = self._refine(grey, guess)
+        anchors = Anchors(self._keyframes, self._key, self._uv_ref, self._ref_patches,
+                          self._misses)
+        uv, zncc, ok = self._refiner.refine(grey, guess, anchors)
         passed = ok & (zncc >= self.min_zncc)
         if self.fb_max_px is not None:
-            passed &= self._forward_backward(grey, uv) <= self.fb_max_px
+            passed &= self._refiner.forward_backward(grey, uv, anchors) <= self.fb_max_px
         uv = np.where(ok[:, None], uv, guess)        # a missed track moves with its prediction
         inside = grid.inside(uv, grey.shape)
         misses = np.where(passed, 0, self._misses + 1)
@@ -272,100 +243,6 @@ class DenseTracker:
         origin = np.float32([x0, y0])
         return guess + imaging.sample(self._step_flow, guess - origin)
 
-    def _refine(self, grey, guess):
-        """``(uv: (P, 2) float64, zncc: (P,), ok: (P,) bool)``: each keyframe's tracks
-        refined against it, on the normalised frame (computed once, in the box around the
-        guesses)."""
-        uv = guess.astype(np.float64)
-        zncc, ok = np.zeros(len(uv)), np.ones(len(uv), bool)
-        if len(uv) == 0:
-            return uv, zncc, ok
-        x0, y0, x1, y1 = grid.box(guess, grey.shape, _WARP_MARGIN + self.lk_window)
-        raw = grey[y0:y1, x0:x1]
-        current = grid.Crop(imaging.normalise(raw), np.float32([x0, y0]), raw)
-        for key in np.unique(self._key):
-            rows = np.flatnonzero(self._key == key)
-            uv[rows], zncc[rows], ok[rows] = self._refine_keyframe(
-                self._keyframes[key], current, self._uv_ref[rows], self._ref_patches[rows],
-                guess[rows], both_ways=bool((self._misses[rows] == 0).any()))
-        return uv, zncc, ok & np.isfinite(uv[:, 0]) & np.isfinite(uv[:, 1])
-
-    def _refine_keyframe(self, keyframe, current, ref, patches, guess, both_ways=True):
-        """Tracks of one keyframe at ``ref (P, 2)`` in it, with their reference
-        ``patches (P, n)``: the frame ``current`` (a :class:`grid.Crop`) is warped into the
-        keyframe by the displacement field of the ``guess`` es (where the method warps)
-        and normalised, then Lucas-Kanade from the normalised keyframe corrects what the
-        field missed; the ZNCC check is taken in the warped frame; a track whose ZNCC is
-        under ``_SMOOTH_ZNCC`` is pulled toward its passing neighbours' field (fully at
-        ``min_zncc``). Returns ``(uv (P, 2), zncc (P,), ok (P,))``."""
-        shape = keyframe.normalised.shape
-        if not self._warp:
-            image = cv2.copyMakeBorder(current.image, int(current.origin[1]), max(
-                shape[0] - int(current.origin[1]) - current.image.shape[0], 0), int(
-                current.origin[0]), max(shape[1] - int(current.origin[0])
-                                        - current.image.shape[1], 0), cv2.BORDER_REPLICATE)
-            uv, ok = guess, np.ones(len(ref), bool)
-            if self._refine_lk:
-                uv, ok = self._lk(keyframe.normalised, image, ref, guess)
-            if self._refine_lk and self._dis is not None:
-                ok &= np.linalg.norm(uv - guess, axis=1) <= _MAX_REFINEMENT
-            return uv, imaging.patch_zncc(patches, imaging.smoothed(image), uv), ok
-        x0, y0, x1, y1 = grid.box(ref, shape, _WARP_MARGIN + self.lk_window)
-        origin = np.float32([x0, y0])
-        local = ref - origin
-        splat = fields.splatting(local, (y1 - y0, x1 - x0), self.step)
-        field = fields.displacement_field(local, guess - ref, (y1 - y0, x1 - x0), self.step, splat)
-        warped = imaging.normalise(imaging.warp(current.raw, current.origin, field, origin))
-        where, ok = local, np.ones(len(ref), bool)
-        if self._refine_lk:
-            where, ok = self._lk(
-                np.ascontiguousarray(keyframe.normalised[y0:y1, x0:x1]), warped, local,
-                local.copy())
-            if self._dis is not None:
-                ok &= np.linalg.norm(where - local, axis=1) <= _MAX_REFINEMENT
-        uv = where + origin + imaging.sample(field, where)
-        zncc = imaging.patch_zncc(patches, imaging.smoothed(warped), where)
-        if self._refine_lk and both_ways:
-            back, both = self._refine_in_frame(keyframe, current, ref, uv.astype(np.float32))
-            uv = np.where(both[:, None], 0.5 * (uv + back), uv)
-        if self._refine_lk and self.min_zncc < _SMOOTH_ZNCC:
-            weight = np.clip((_SMOOTH_ZNCC - zncc) / (_SMOOTH_ZNCC - self.min_zncc), 0.0, 1.0)
-            uv = uv + weight[:, None] * (fields.neighbour_moves(
-                splat, local, uv - ref, ok & (zncc >= self.min_zncc)) - (uv - ref))
-        return uv, zncc, ok
-
-    def _refine_in_frame(self, keyframe, current, ref, guess):
-        """The same tracks measured the other way round: the normalised keyframe warped
-        into the frame's box by the field from the ``guess`` es back to ``ref``, then LK
-        from it to the normalised frame ``current``; returns ``(uv: (P, 2), ok: (P,))``.
-        The two ways err in opposite directions where the view is foreshortened or
-        stretched against the keyframe, so the tracker takes their mean."""
-        current = grid.sub_crop(current, guess, _WARP_MARGIN + self.lk_window)
-        local = guess - current.origin
-        field = fields.displacement_field(local, ref - guess, current.image.shape, self.step)
-        warped = imaging.normalise(imaging.warp(keyframe.grey, np.float32([0, 0]), field,
-                                                current.origin))
-        source = local
-        for _ in range(_INVERSE_STEPS):       # where the warped keyframe shows each ``ref``
-            source = ref - current.origin - imaging.sample(field, source)
-        moved, ok = self._lk(warped, current.image, source, local.copy())
-        ok &= np.linalg.norm(moved - local, axis=1) <= _MAX_REFINEMENT
-        return moved + current.origin, ok
-
-    def _forward_backward(self, grey, uv):
-        """Distance ``(P,)`` between each track's keyframe point and its point tracked back
-        from ``uv`` into its keyframe (LK on normalised images)."""
-        points = uv.astype(np.float32)
-        back = np.full(len(uv), np.inf)
-        current = imaging.normalise(grey)
-        for key in np.unique(self._key):
-            rows = np.flatnonzero(self._key == key)
-            moved, ok = self._lk(current, self._keyframes[key].normalised, points[rows],
-                                 self._uv_ref[rows].copy())
-            distance = np.linalg.norm(moved - self._uv_ref[rows], axis=1)
-            back[rows] = np.where(ok, distance, np.inf)
-        return back
-
     def _needs_keyframe(self, shape):
         """``(by_count, uncovered)``: whether the current frame should become a keyframe for
         every track (``reanchor_every``), and whether too much of the region is uncovered
@@ -381,7 +258,9 @@ class DenseTracker:
         oldest keyframe beyond ``max_keyframes``) are re-anchored to it, keeping their ids;
         with a ``region`` (None: no births), tracks are born on its uncovered cells."""
         key = self._frame
-        self._keyframes[key] = self._keyframe_images(grey, region)
+        points = self._uv if region is None else np.concatenate(
+            [self._uv, grid.region_cells(region, self.step)])
+        self._keyframes[key] = make_keyframe(grey, points, _KEYFRAME_MARGIN + self.lk_window)
         healthy = self._misses == 0           # missed tracks keep their keyframe
         older, held = np.unique(self._key[healthy & (self._key != key)], return_counts=True)
         retired = older[np.argsort(-held, kind='stable')[self.max_keyframes - 1:]]
@@ -410,22 +289,6 @@ class DenseTracker:
         self._ids, self._key, self._born = self._ids[keep], self._key[keep], self._born[keep]
         self._uv_ref, self._ref_patches = self._uv_ref[keep], self._ref_patches[keep]
         self._uv, self._misses = self._uv[keep], self._misses[keep]
-
-    def _keyframe_images(self, grey, region):
-        """The :class:`_Keyframe` of ``grey``, normalised only in the box where its
-        tracks (and births on ``region``) will be measured (128 elsewhere)."""
-        points = self._uv
-        if region is not None:
-            points = np.concatenate([points, grid.region_cells(region, self.step)])
-        if len(points) == 0:
-            return _Keyframe(grey, np.full(grey.shape, 128, np.uint8),
-                             np.full(grey.shape, 128, np.uint8))
-        x0, y0, x1, y1 = grid.box(points, grey.shape, _KEYFRAME_MARGIN + self.lk_window)
-        normalised = np.full(grey.shape, 128, np.uint8)
-        smoothed = normalised.copy()
-        normalised[y0:y1, x0:x1] = imaging.normalise(grey[y0:y1, x0:x1])
-        smoothed[y0:y1, x0:x1] = imaging.smoothed(normalised[y0:y1, x0:x1])
-        return _Keyframe(grey, normalised, smoothed)
 
     def _birth(self, grey, key):
         """New tracks on the uncovered, textured grid cells of the region, anchored to the
