@@ -3,10 +3,18 @@
 The 191 frames of Varol et al.'s sheet of paper (``<data>/kinect_paper_images``, K in its
 meta.json) are read as ``grass-nrsfm track`` reads a folder (:mod:`grass_nrsfm_ros.frontend.
 sources`) and tracked by :class:`~grass_nrsfm_ros.frontend.DenseTracker` on a grid inside the
-paper's window x 253-508, y 132-363. The tracks alive in every frame (the solver takes complete
-tracks) go, in normalised coordinates ``K^-1 [u v 1]``, to ``GrassmannNRSfM`` (and to rigid
-factorisation for comparison), and in pixels through the live pipeline as the node runs it
-(``reconstruct_live``, default parameters).
+paper's window x 253-508, y 132-363. Reconstructions (the names of the e3D figures):
+
+* ``whole``: the tracks alive in every frame, in normalised coordinates ``K^-1 [u v 1]``,
+  solved at once by ``GrassmannNRSfM`` as orthographic projections (the pictures show it);
+* ``whole_perspective``: the same through the pinhole (``projection='perspective'``);
+* ``rigid``: rigid factorisation of the same;
+* ``max_depth_located_frames``: the maximum-depth heuristic (``surface='sheet'`` on pinhole
+  tracks) on the same tracks in the 10 frames the truth was located in only (its linear
+  programme over all 191 frames had not finished after 25 minutes of CPU);
+* ``live_points`` / ``live_refined``: every track as the tracker gives it, in pixels with
+  ``K``, through the live pipeline as the node runs it with ``camera_info``
+  (``reconstruct_live``, default parameters).
 
 Ground truth: the data holds none for the 191 frames; ``perspective_subsets/kinect_paper.npz``
 has 90 points in 10 frames of the same pixel frame (Kinect depth, mm) whose frame numbers are
@@ -42,6 +50,7 @@ from grass_nrsfm_ros.commands.track import tracks_matrix
 from grass_nrsfm_ros.frontend import DenseTracker
 from grass_nrsfm_ros.frontend.sources import open_source
 from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM
+from grass_nrsfm_ros.nrsfm.max_depth import MaxDepthNRSfM
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
 from grass_nrsfm_ros.params import defaults
 from grass_nrsfm_ros.pipeline import make_pipeline, reconstruct_live
@@ -264,12 +273,14 @@ def measure(args, frames_folder, K):
     solve_seconds = time.perf_counter() - started
     _, S_rigid = rigid_factorisation(Wn)
     log(f'GrassmannNRSfM: {int(complete.sum())} complete tracks in {solve_seconds:.0f} s')
+    S_perspective = GrassmannNRSfM(projection='perspective').fit(Wn).S
+    log('GrassmannNRSfM through the pinhole: done')
     started = time.perf_counter()
-    S_points, S_refined = live(W[:, complete], ids[complete], stamps)
+    S_points, S_refined = live(W, ids, stamps, K, complete)
     live_seconds = time.perf_counter() - started
     log(f'live pipeline: {live_seconds:.0f} s')
     run = dict(W=W, ids=ids, stamps=stamps, ms_per_frame=1000 * frame_seconds, S=result.S,
-               S_rigid=S_rigid, solve_seconds=solve_seconds,
+               S_rigid=S_rigid, S_perspective=S_perspective, solve_seconds=solve_seconds,
                iterations=result.report.iterations, S_points=S_points, S_refined=S_refined,
                live_seconds=live_seconds)
     if cache is not None:
@@ -277,23 +288,30 @@ def measure(args, frames_folder, K):
     return {**run, 'counts': counts}
 
 
-def live(W_px, ids, stamps):
-    """The live pipeline (defaults, inline) over the complete tracks in pixels, as the node
-    would run them: ``(S_points, S_refined)``, each ``(3F, P)``, NaN where not published."""
-    F = W_px.shape[0] // 2
-    pipeline = make_pipeline(defaults())
+def live(W, ids, stamps, K, columns):
+    """The live pipeline (defaults, inline, intrinsics ``K``) over every track of ``W: (2F,
+    P)`` pixels (NaN where not tracked), as the node would run them: ``(S_points,
+    S_refined)``, each ``(3F, C)`` for the tracks ``columns (P,) bool``, NaN where not
+    published."""
+    F = W.shape[0] // 2
+    pipeline = make_pipeline(defaults(), camera=K)
+    frames = []
+    for f in range(F):
+        seen = np.isfinite(W[2 * f])
+        frames.append((ids[seen], W[2 * f:2 * f + 2, seen].T))
     try:
-        points, refined, _ = reconstruct_live(
-            pipeline, stamps, [(ids, W_px[2 * f:2 * f + 2].T) for f in range(F)])
+        points, refined, _ = reconstruct_live(pipeline, stamps, frames)
     finally:
         pipeline.close()
     frame_of = {int(s): f for f, s in enumerate(stamps)}
+    wanted = ids[columns]
     shapes = []
     for results in (points, refined):
-        S = np.full((3 * F, ids.size), np.nan)
+        S = np.full((3 * F, wanted.size), np.nan)
         for r in results:
             f = frame_of[int(r.stamp_ns)]
-            S[3 * f:3 * f + 3, np.searchsorted(ids, r.ids)] = r.xyz.T
+            _, mine, theirs = np.intersect1d(wanted, r.ids, return_indices=True)
+            S[3 * f:3 * f + 3, mine] = r.xyz[theirs].T
         shapes.append(S)
     return shapes
 
@@ -321,10 +339,11 @@ def main(argv=None):
         born_total=int(counts['born'].sum()), reanchored=int(counts['reanchored'].sum()),
         solve_seconds=float(run['solve_seconds']), iterations=int(run['iterations']),
         live_seconds=float(run['live_seconds']),
-        coordinates='whole sequence: normalised K^-1 [u v 1] (the solver has no K support '
-        'yet); live pipeline: pixels (its parameters are in pixels)')
+        coordinates='whole sequence: normalised K^-1 [u v 1] of the complete tracks; live '
+        'pipeline: pixels of every track with K')
     figures['ground_truth'] = ground_truth_figures(
-        W_px, {'whole': run['S'], 'rigid': run['S_rigid'], 'live_points': run['S_points'],
+        W_px, {'whole': run['S'], 'whole_perspective': run['S_perspective'],
+               'rigid': run['S_rigid'], 'live_points': run['S_points'],
                'live_refined': run['S_refined']}, K, args.tie_px)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -369,11 +388,24 @@ def ground_truth_figures(W_px, estimates, K, tie_px):
     if match is None:
         return {'available': True, 'located': False}
     own = GrassmannNRSfM().fit(normalised(W_gt_px, K)).S
+    e3ds = {name: subset_e3d(S, match, S_gt) for name, S in estimates.items()}
+    e3ds['max_depth_located_frames'] = subset_e3d(
+        located_max_depth(W_px, K, match['frames']), match, S_gt)
     return dict(available=True, located=True, frames=match['frames'] + 1,
                 residual_px=match['residual_px'], points_tied=int(match['tied'].sum()),
-                points=int(W_gt_px.shape[1]),
-                e3d={name: subset_e3d(S, match, S_gt) for name, S in estimates.items()},
+                points=int(W_gt_px.shape[1]), e3d=e3ds,
                 e3d_subset_alone=e3d(own, S_gt, scale=True))
+
+
+def located_max_depth(W_px, K, frames):
+    """``S: (3F, P)`` of the maximum-depth heuristic solved on the complete tracks ``W_px:
+    (2F, P)`` in ``frames`` only (NaN in the others)."""
+    F = W_px.shape[0] // 2
+    rows = (2 * np.asarray(frames)[:, None] + np.arange(2)).ravel()
+    S_frames = MaxDepthNRSfM().fit(normalised(W_px[rows], K)).S
+    S = np.full((3 * F, W_px.shape[1]), np.nan)
+    S[(3 * np.asarray(frames)[:, None] + np.arange(3)).ravel()] = S_frames
+    return S
 
 
 if __name__ == '__main__':
