@@ -29,7 +29,7 @@ rigid factorisation's and the solver's on the subset's own 10 x 90 tracks.
 Writes ``bench/results/kinect_paper.json`` and, unless ``--no-pictures``,
 ``docs/pictures/kinect_paper_tracking.png`` (alive tracks, births and failed checks per frame)
 and ``docs/pictures/kinect_paper_fig1.png`` (input frames above their reconstructed surface,
-coloured by depth, as the paper's Fig. 1). About 4 minutes on 2 cores.
+coloured by depth, as the paper's Fig. 1). About 11 minutes on 2 cores.
 
     python -m bench.kinect_paper [--step 4] [--method dis-medium] [--frames N]
 """
