@@ -2,8 +2,9 @@
 
 It owns what carries from one solve to the next: the previous solution, the warm start
 (``warm_start``: 'resume' or 'model', docs/decisions/0037, 0404), the depth alignment (each
-solution's depth sign agrees with the previous one on the overlap, or, for a sequence's first
-model, with the depths the tracking already published, which travel in the frames), the
+solution's depth sign agrees with the previous one on the overlap, or, where they share no
+frame (a sequence's first solve, a restarted mapping, windows skipped without context), with
+the depths the tracking published, which travel in the frames), the
 penalty schedule of a resumed window (passed to the solver per call, 0408, 0425) and the
 tracks a window is solved on (``mapping_tracks``, 0403). Pure Python and numpy: no ROS.
 
@@ -106,9 +107,9 @@ class Update:
     window whose frames the last solve holds: no solve, the waiting frames go out); 'failed'
     (``message`` says why); 'dropped' (not solved: ``message`` 'skipped' when a newer window
     replaced it, 'reset', 'stopping'). ``results``: the solve's FrameResults of the frames it
-    may still refine (see :meth:`Mapper.solve`); ``flipped``: this solve mirrored the depth
-    of the earlier ones (results solved before it and not yet published must be mirrored
-    too); ``model``: the tracking's next ShapeModel; ``figures``: what the diagnostics show."""
+    may still refine (see :meth:`Mapper.solve`); ``flipped``: this solve was mirrored to
+    agree with the depths published for its frames; ``model``: the tracking's next
+    ShapeModel; ``figures``: what the diagnostics show."""
 
     kind: str
     sequence: int
@@ -209,7 +210,6 @@ class Mapper:
         if window.ids.size < self.min_tracks:
             raise WindowError(f'window {window.index}: its {window.n_frames} frames share '
                               f'{window.ids.size} tracks (< min_tracks={self.min_tracks})')
-        published = self._published_depths(window)
         problem = self._problem(window)
         filled, seen = problem.filled, problem.seen
         Wc, _ = centre(filled)
@@ -229,9 +229,9 @@ class Mapper:
             S, groups = fill_dropped(S, labels, filled, keep)
         Z = as_frames(S, 3)[:, 2, :]
         Z -= Z.mean(axis=1, keepdims=True)
-        if self._depth_disagrees(problem, Z):
-            S, R = flip_depth(S), DEPTH_FLIP @ R @ DEPTH_FLIP
-            Z = as_frames(S, 3)[:, 2, :]
+        flipped = self._mirrored(window, problem, Z)
+        if flipped is not None:
+            S, R, Z = flip_depth(S), DEPTH_FLIP @ R @ DEPTH_FLIP, -Z
         report = getattr(result, 'report', None)
         if getattr(report, 'rotation_checked', False):
             full = problem.n_context >= self.context_frames
@@ -244,12 +244,7 @@ class Mapper:
                                                      1e-300))
         self.previous = Solution(window.sequence, problem.stamps, problem.ids, uv, S, R,
                                  groups, report, residual, self._rank_of(report, init))
-        flipped = bool(published) and disagrees_with(self.previous, published)
-        if flipped:
-            p = self.previous
-            p.S, p.R = flip_depth(p.S), DEPTH_FLIP @ p.R @ DEPTH_FLIP
-            Z = -Z
-        return problem, as_frames(Wc, 2), Z, flipped, seen
+        return problem, as_frames(Wc, 2), Z, flipped == 'published', seen
 
     def _fit_kwargs(self, solver, problem, init, keep, progress):
         """The keywords of this solve's ``fit``: the start, the window's completion (the
@@ -303,14 +298,19 @@ class Mapper:
         return (window.final and p is not None and p.sequence == window.sequence
                 and np.isin(window.stamps, p.stamps).all())
 
-    def _published_depths(self, window):
-        """``{stamp: (ids, z)}`` published for the frames of ``window`` (and its context)
-        before a model, when the mapper has no solution of its sequence yet (its first
-        model keeps the orientation the tracking published); else ``{}``."""
-        if self.previous is not None and self.previous.sequence == window.sequence:
-            return {}
-        return {f.stamp_ns: f.depth for f in window.context + window.frames
-                if f.depth is not None}
+    def _mirrored(self, window, problem, Z):
+        """Why the solve's depth ``Z: (F, P)`` (centred per frame) must be mirrored, or None:
+        'previous' where it correlates negatively with the previous solution's on the frames
+        and tracks both hold; where they share none, 'published' where it correlates
+        negatively with the depths published for ``window``'s frames (and context)."""
+        ov = self._overlap(problem)
+        if ov is not None:
+            fn, fo, tn, to = ov
+            old = as_frames(self.previous.S, 3)[:, 2, :][np.ix_(fo, to)]
+            return 'previous' if correlation(Z[np.ix_(fn, tn)], old) < 0.0 else None
+        published = {f.stamp_ns: f.depth for f in window.context + window.frames
+                     if f.depth is not None}
+        return 'published' if disagrees_with(problem, Z, published) else None
 
     def _problem(self, window):
         """What ``window`` is solved as: its context frames then its own frames, on the
@@ -355,19 +355,6 @@ class Mapper:
         if fn.size == 0 or tn.size < self.min_tracks:
             return None
         return fn, fo, tn, to
-
-    def _depth_disagrees(self, problem, Z):
-        """True if depth ``Z: (F, P)`` (centred per frame) correlates negatively with the
-        previous solution's depth on the overlapping frames and tracks."""
-        ov = self._overlap(problem)
-        if ov is None:
-            return False
-        fn, fo, tn, to = ov
-        new = Z[np.ix_(fn, tn)]
-        old = as_frames(self.previous.S, 3)[:, 2, :][np.ix_(fo, to)]
-        new = new - new.mean(axis=1, keepdims=True)
-        old = old - old.mean(axis=1, keepdims=True)
-        return float(np.sum(new * old)) < 0.0
 
     def _start_for(self, problem):
         """The solver's ``init`` for ``problem``: the previous solution resumed ('resume', when
@@ -505,15 +492,22 @@ def flip_depth(S):
     return (DEPTH_FLIP @ as_frames(S, 3)).reshape(S.shape)
 
 
-def disagrees_with(solution, published):
-    """True if ``solution``'s depth correlates negatively with the depths ``published``
-    (``{stamp: (ids, z)}``) on the frames both have."""
+def correlation(new, old):
+    """Sum over frames of the products of two depths ``(F, P)``, each centred per frame."""
+    new = new - new.mean(axis=1, keepdims=True)
+    old = old - old.mean(axis=1, keepdims=True)
+    return float(np.sum(new * old))
+
+
+def disagrees_with(problem, Z, published):
+    """True if the depth ``Z: (F, P)`` of ``problem``'s frames and tracks correlates
+    negatively with the depths ``published`` (``{stamp: (ids, z)}``) on the frames both
+    have."""
     total = 0.0
-    Z = solution.S.reshape(len(solution.stamps), 3, -1)[:, 2, :]
-    for f, stamp in enumerate(solution.stamps):
+    for f, stamp in enumerate(problem.stamps):
         if int(stamp) not in published:
             continue
         ids, z = published[int(stamp)]
-        _, a, b = np.intersect1d(solution.ids, ids, assume_unique=True, return_indices=True)
-        total += float(np.dot(Z[f, a] - Z[f, a].mean(), z[b] - z[b].mean()))
+        _, a, b = np.intersect1d(problem.ids, ids, assume_unique=True, return_indices=True)
+        total += correlation(Z[f, a][None], z[b][None].astype(np.float64))
     return total < 0.0

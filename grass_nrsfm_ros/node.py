@@ -208,8 +208,6 @@ class ReconstructionNode(Node):
         then = ('restarted it; windows need new frames before they solve again'
                 if restarted else 'not restarted (too many restarts): the model is frozen')
         self.get_logger().error(f'the mapping process exited with code {exitcode}: {then}')
-        if restarted:
-            self.pipeline.tracking.realign()
 
     # -- publishing -----------------------------------------------------------------------------
     def _publish_paced(self, publisher, results):

@@ -13,9 +13,7 @@ Accounting: ``stats['published'] + stats['frames_lost'] + pending`` is every fra
 window :meth:`Refinement.expect` was told of.
 """
 from collections import deque
-from dataclasses import replace
 
-from grass_nrsfm_ros.mapper import DEPTH_FLIP
 
 #: frames of closed windows waiting at most (a mapping that never answers cannot grow it)
 UNPUBLISHED_KEPT = 1_000_000
@@ -74,9 +72,6 @@ class Refinement:
         if self._latest[0] != update.sequence:
             self._latest = (update.sequence, {})
         latest = self._latest[1]
-        if update.flipped:                  # solved in the orientation this solve mirrored
-            for stamp, (r, solves) in latest.items():
-                latest[stamp] = (replace(r, xyz=r.xyz @ DEPTH_FLIP), solves)
         solved = set()
         for result in update.results:
             stamp = result.stamp_ns

@@ -37,12 +37,18 @@ RESIDUAL_BASELINE = 30
 @dataclass(frozen=True)
 class Tracked:
     """One tracked frame: its ``result``; ``surprising`` (see the module docstring);
-    ``depth``: ``(ids, z)`` when the frame was tracked before its sequence's model (the first
-    model takes this orientation), else None."""
+    ``depth``: ``(ids, z: float32)`` published for it (the mapping orients a solve it cannot
+    orient by its previous one by these), None where the frame went out flat."""
 
     result: FrameResult
     surprising: bool = False
     depth: tuple = None
+
+
+def published_depth(tracked):
+    """``(ids: (P,), z: (P,) float32)`` of a TrackedFrame: what the mapping needs to keep the
+    published orientation (single precision: only the sign of a correlation is taken)."""
+    return tracked.ids, tracked.xyz[:, 2].astype(np.float32)
 
 
 def bootstrap_model(frames):
@@ -123,7 +129,6 @@ class ShapeTracking:
         self._requested = False         # a fresh window asked for since the current model
         self._bootstrap = []            # Frames of the sequence while it has no model
         self._bootstrap_seen = 0        # frames tracked since then (_bootstrap stops growing)
-        self._realigning = False        # the mapping lost its state: keep depths until a model
         self._waiting = None            # (sequence, ShapeModel) for the next frame
         self._sequence = None
         self._lock = threading.Lock()
@@ -143,11 +148,6 @@ class ShapeTracking:
             self._waiting = (sequence, model)
         self.stats['models'] += 1
 
-    def realign(self):
-        """The mapping lost its state (a restarted mapping process): until its next model,
-        tracked frames carry their depth, so that model keeps the published orientation."""
-        self._realigning = True
-
     def reset(self):
         """Forget the model, the one waiting and the bootstrap (a new sequence); True if
         there was a model (or a bootstrap one)."""
@@ -155,7 +155,6 @@ class ShapeTracking:
             had_model = self._tracker is not None or self._waiting is not None
             self._waiting = None
         self._forget_model()
-        self._realigning = False
         return had_model
 
     def track(self, frame):
@@ -177,8 +176,8 @@ class ShapeTracking:
             self.stats['fresh_windows'] += 1
             self._requested = True
         self._residuals.append(tracked.residual)
-        depth = (tracked.ids, tracked.xyz[:, 2]) if self._realigning else None
-        return Tracked(self._result(frame, tracked.ids, tracked.xyz), surprising, depth)
+        return Tracked(self._result(frame, tracked.ids, tracked.xyz), surprising,
+                       published_depth(tracked))
 
     # -- internals ------------------------------------------------------------------------------
     def _take_model(self):
@@ -188,7 +187,7 @@ class ShapeTracking:
         if waiting is None or waiting[0] != self._sequence:
             return
         _, model = waiting
-        self._requested, self._realigning = False, False
+        self._requested = False
         if self.has_model:
             self._tracker.swap(model)
             return
@@ -231,7 +230,7 @@ class ShapeTracking:
         self.last.update(residual=tracked.residual, model_age=self._tracker.age,
                          model_rank=0, bootstrap=True)
         return Tracked(self._result(frame, tracked.ids, tracked.xyz),
-                       depth=(tracked.ids, tracked.xyz[:, 2]))
+                       depth=published_depth(tracked))
 
     def _fit(self, frame):
         """The tracker's TrackedFrame of ``frame``, or None (counted) where the fit fails or

@@ -25,7 +25,8 @@ Policies:
   no window go out in one last window (``final``), and no state crosses the boundary.
 
 What the mapping needs from the tracking side travels inside the frames: ``Frame.depth``, the
-depth published for the frame before a model existed (the first model takes its orientation).
+depth published for the frame (a solve that shares no frame with the mapping's previous one, as
+a sequence's first, takes that orientation).
 """
 from bisect import bisect_left
 from collections import deque
@@ -51,8 +52,8 @@ class FrameError(ValueError):
 @dataclass(frozen=True)
 class Frame:
     """One accepted frame: ``ids: (P,) uint32`` sorted, ``uv: (P, 2)`` pixels in the same order,
-    the ``sequence`` it belongs to; ``depth``: ``(ids: (Q,), z: (Q,))`` published for it before
-    its sequence had a model (None: not)."""
+    the ``sequence`` it belongs to; ``depth``: ``(ids: (Q,), z: (Q,))`` published for it (None:
+    not known)."""
 
     stamp_ns: int
     frame_id: str

@@ -134,9 +134,13 @@ class Feeder(SpunNode):
         sent before the node's reader matched our writer are ignored by it, and clouds the node
         sends before its writer matched our reader are gone, volatile durability. Before this
         check, 3 of 6 local runs of test_faults had a test that lost all or part of its stream:
-        0 of 40 and 35 of 40 clouds, and a node that received nothing; none in 6 runs since.)"""
+        0 of 40 and 35 of 40 clouds, and a node that received nothing; none in 6 runs since.)
+        A mapping process has also started (one still importing when the first windows close
+        solves only the newest: beside a CPU hog, 2 of 10 runs of the 30 Hz stream lost the
+        first window's frames)."""
         values = self.node_reports(self.pub_created)
-        return (self.pub.get_subscription_count() >= 1
+        return (values.get('mapping process') != 'starting'
+                and self.pub.get_subscription_count() >= 1
                 and self.points_sub.get_publisher_count() >= 1
                 and int(values.get('tracks publishers', 0)) >= 1
                 and int(values.get('points subscribers', 0)) >= 1)

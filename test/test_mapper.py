@@ -189,6 +189,26 @@ def test_a_later_window_aligns_to_the_previous_solution_not_the_frames():
     assert not mapper.solve(replace(windows[1], frames=frames)).flipped
 
 
+def test_a_window_sharing_no_frame_with_the_previous_takes_the_published_orientation():
+    """Windows skipped without context (window 0, then window 3 of 10-frame strides): no
+    frame to align on, so the solve takes the orientation of the depths published for its
+    frames, the tracking's on the previous model."""
+    W, S, ids = bending_sheet(F=60, noise=0.5)
+    windows = windows_of(W, ids, context_frames=0)
+    reference = Mapper(RigidALS, context_frames=0)
+    reference.solve(windows[0])
+    skipped = reference.solve(windows[3])
+    for sign in (1.0, -1.0):
+        frames = tuple(replace(f, depth=(r.ids, (sign * r.xyz[:, 2]).astype(np.float32)))
+                       for f, r in zip(windows[3].frames, skipped.results))
+        mapper = Mapper(RigidALS, context_frames=0)
+        mapper.solve(windows[0])
+        update = mapper.solve(replace(windows[3], frames=frames))
+        assert update.flipped == (sign < 0)
+        for a, b in zip(update.results, skipped.results):
+            np.testing.assert_allclose(a.xyz, b.xyz * [1, 1, sign], atol=1e-9)
+
+
 def test_window_with_too_few_common_tracks_is_not_solved():
     W, S, ids = bending_sheet(F=30, P=60)
     windowing = Windowing(min_tracks=10)
