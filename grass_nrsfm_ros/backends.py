@@ -124,12 +124,13 @@ class WindowSpec:
     context_stamps: tuple
     fresh: tuple = ()
     final: bool = False
+    preview: bool = False
 
     @classmethod
     def of(cls, window):
         return cls(window.sequence, window.index, tuple(int(s) for s in window.stamps),
                    window.ids, window.closed_at, tuple(f.stamp_ns for f in window.context),
-                   window.fresh, window.final)
+                   window.fresh, window.final, window.preview)
 
 
 class FrameStore:
@@ -154,7 +155,7 @@ class FrameStore:
         context = tuple(self.frames[(spec.sequence, s)] for s in spec.context_stamps
                         if (spec.sequence, s) in self.frames)
         return Window(spec.sequence, spec.index, frames, spec.ids, spec.closed_at, context,
-                      spec.fresh, spec.final)
+                      spec.fresh, spec.final, spec.preview)
 
     def prune(self, spec):
         """Drop the frames no window after ``spec`` can name."""

@@ -106,8 +106,9 @@ class Update:
     """What the mapping gives out for one window. ``kind``: 'solved'; 'released' (a final
     window whose frames the last solve holds: no solve, the waiting frames go out); 'failed'
     (``message`` says why); 'dropped' (not solved: ``message`` 'skipped' when a newer window
-    replaced it, 'reset', 'stopping'). ``results``: the solve's FrameResults of the frames it
-    may still refine (see :meth:`Mapper.solve`); ``flipped``: this solve was mirrored to
+    replaced it, 'reset', 'stopping'); ``preview``: of a preview window (a model, no
+    results). ``results``: the solve's FrameResults of the frames it may still refine (see
+    :meth:`Mapper.solve`); ``flipped``: this solve was mirrored to
     agree with the depths published for its frames; ``model``: the tracking's next
     ShapeModel; ``figures``: what the diagnostics show."""
 
@@ -116,6 +117,7 @@ class Update:
     index: int
     stamps: tuple
     final: bool = False
+    preview: bool = False
     closed_at: float = 0.0
     n_tracks: int = 0
     results: tuple = ()
@@ -128,7 +130,8 @@ class Update:
     def of(cls, window, kind, **kwargs):
         """An Update of ``window`` (a Window or a WindowSpec)."""
         return cls(kind, window.sequence, window.index, tuple(int(s) for s in window.stamps),
-                   window.final, window.closed_at, int(window.ids.size), **kwargs)
+                   window.final, window.preview, window.closed_at, int(window.ids.size),
+                   **kwargs)
 
 
 def _accepts(fit, name):
@@ -201,7 +204,7 @@ class Mapper:
             problem, S, Z, flipped, seen = self._solve(window, progress)
             model = build_model(self.previous.S, self.previous.R, self.previous.ids,
                                 self.previous.stamps)
-        results = self._results(problem, S, Z, seen)
+        results = () if window.preview else self._results(problem, S, Z, seen)
         return Update.of(window, 'solved', results=results, flipped=flipped, model=model,
                          figures=self._figures(time.monotonic() - started))
 

@@ -192,7 +192,7 @@ class ReconstructionNode(Node):
             self._publish_diagnostics()
 
     def _note(self, update):
-        if update.kind == 'dropped' and update.message == 'skipped':
+        if update.kind == 'dropped' and update.message == 'skipped' and not update.preview:
             self.counts['dropped_windows'] += 1
             self.get_logger().warning('solves are falling behind: skipped to the newest '
                                       'window', throttle_duration_sec=LOG_PERIOD_S)

@@ -58,6 +58,12 @@ NODE_PARAMS = (
           "shapes start from the solver's own start (the reference the live benchmark compares "
           "'resume' with). A window without context frames (the first) starts from the rigid "
           'factorisation.', choices=WARM_STARTS),
+    Param('first_model_frames', 0, int,
+          "Frames after which a sequence's first model is solved, before its first window "
+          'closes: a preview window of the frames so far, whose model the tracking takes and '
+          'whose shapes are not published on points/refined (an earlier model, often a worse '
+          'one than the rigid start-up model: docs/decisions/0444). 0, or window_size and '
+          'above: none (the first model comes from the first window).', range=(0, 100000)),
     Param('context_frames', 60, int,
           'Earlier frames solved again with each window (not republished): the shape prior '
           'sees window + context frames. 0: the window alone.', range=(0, 100000)),
@@ -133,7 +139,8 @@ NODE_PARAMS = (
           'are left out of the mesh (gaps, convex hull).', range=(1.0, 1e6)),
 )
 #: the parameters the windowing takes
-WINDOW_KEYS = ('window_size', 'window_stride', 'min_tracks', 'context_frames', 'key_frames')
+WINDOW_KEYS = ('window_size', 'window_stride', 'min_tracks', 'context_frames', 'key_frames',
+               'first_model_frames')
 #: the parameters the mapper takes (besides the solver's)
 MAPPER_KEYS = ('min_tracks', 'warm_start', 'context_frames', 'mapping_tracks')
 

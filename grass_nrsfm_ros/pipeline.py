@@ -164,8 +164,9 @@ class LivePipeline:
 
     def _submit(self, windows):
         for window in windows:
-            with self._lock:
-                self.refinement.expect(window)
+            if not window.preview:
+                with self._lock:
+                    self.refinement.expect(window)
             self.backend.submit(window)
 
     def _normalised(self, frame):

@@ -52,7 +52,7 @@ class Refinement:
         if update.kind == 'failed':
             self.stats['failed'] += 1
             return []
-        if update.kind not in ('solved', 'released'):
+        if update.kind not in ('solved', 'released') or update.preview:
             return []
         if update.kind == 'solved':
             self.stats['solved'] += 1

@@ -18,6 +18,9 @@ Policies:
   earlier frames and ``key_frames`` older ones spread evenly over the sequence
   (docs/decisions/0035, 0036). ``push(frame, close_early=True)`` closes the next window as soon
   as more than ``window_size - window_stride`` frames wait.
+* **Preview.** Once a sequence has buffered ``first_model_frames`` frames (fewer than
+  ``window_size``) and before its first window, a preview Window of them goes out: solved
+  for a first model only (docs/decisions/0444). It moves no frame and counts as no window.
 * **Tracks.** A window is solved on the tracks seen in WINDOW_TRACK_SHARE of its own frames;
   where a frame does not see one, its W holds NaN (docs/decisions/0432).
 * **All ids change** (a new tracker session): a frame sharing fewer than ``min_tracks`` ids
@@ -70,7 +73,8 @@ class Window:
     (oldest first: key frames,
     then the newest ``context_frames``); ``closed_at``: ``time.monotonic()`` when it closed;
     ``fresh``: stamps of its frames in no earlier window; ``final``: the last window of its
-    sequence."""
+    sequence; ``preview``: a sequence's first frames, solved for a model only (``index``: the
+    next window's, ``fresh`` empty)."""
 
     sequence: int
     index: int
@@ -80,6 +84,7 @@ class Window:
     context: tuple = ()
     fresh: tuple = ()
     final: bool = False
+    preview: bool = False
 
     @property
     def stamps(self):
@@ -152,18 +157,20 @@ class Windowing:
     """Frames in (:meth:`accept`, then :meth:`push`), Windows out; see the module docstring.
 
     ``stats``: ``frames`` accepted, ``refused``, ``resets`` (sequences started after the
-    first), ``windows`` closed, ``frames_dropped`` (accepted, then dropped before any window:
-    too few frames at the end of a sequence, or a reset).
+    first), ``windows`` closed, ``previews`` sent, ``frames_dropped`` (accepted, then
+    dropped before any window: too few frames at the end of a sequence, or a reset).
     """
 
     def __init__(self, *, window_size=30, window_stride=10, min_tracks=10, context_frames=60,
-                 key_frames=30):
+                 key_frames=30, first_model_frames=0):
         params.check_window(window_size=window_size, window_stride=window_stride,
                             min_tracks=min_tracks, context_frames=context_frames,
                             key_frames=key_frames)
         self.window_size, self.window_stride = int(window_size), int(window_stride)
         self.min_tracks, self.context_frames = int(min_tracks), int(context_frames)
         self.key_frames = int(key_frames) if self.context_frames else 0
+        params.check_window(first_model_frames=first_model_frames)
+        self.first_model_frames = int(first_model_frames)
         self.sequence = 0
         self._frames = []               # buffered Frames, ascending stamps
         self._history = deque(maxlen=max(self.context_frames, 1))   # Frames that left _frames
@@ -171,7 +178,8 @@ class Windowing:
         self._index = 0                 # of the next window
         self._emitted_until = None      # newest stamp of the last closed window
         self._close_early = False
-        self.stats = dict(frames=0, refused=0, resets=0, windows=0, frames_dropped=0)
+        self.stats = dict(frames=0, refused=0, resets=0, windows=0, previews=0,
+                          frames_dropped=0)
 
     # -- frames in ------------------------------------------------------------------------------
     def accept(self, stamp_ns, ids, uv, frame_id=''):
@@ -213,6 +221,9 @@ class Windowing:
         stamps = [f.stamp_ns for f in self._frames]
         self._frames.insert(bisect_left(stamps, frame.stamp_ns), frame)
         self.stats['frames'] += 1
+        if self._emitted_until is None and len(self._frames) == self.first_model_frames \
+                and MIN_WINDOW_FRAMES <= self.first_model_frames < self.window_size:
+            windows.append(self._preview())
         kept = self.window_size - self.window_stride     # frames a window leaves buffered
         early = self._close_early and len(self._frames) > max(kept, MIN_WINDOW_FRAMES - 1)
         if len(self._frames) >= self.window_size or early:
@@ -275,6 +286,13 @@ class Windowing:
                              f'emitted window ({self._emitted_until})')
         if any(f.stamp_ns == stamp_ns for f in self._frames):
             raise FrameError(f'duplicate stamp {stamp_ns} (the first frame is kept)')
+
+    def _preview(self):
+        """The preview Window of the buffered frames (see the module docstring)."""
+        frames = tuple(self._frames)
+        self.stats['previews'] += 1
+        return Window(self.sequence, self._index, frames, tracks_seen(frames, WINDOW_TRACK_SHARE),
+                      time.monotonic(), preview=True)
 
     def _emit(self, frames, final=False):
         common = tracks_seen(frames, WINDOW_TRACK_SHARE)

@@ -41,8 +41,8 @@ def closed(W, ids, **kwargs):
 
 
 def assert_same_updates(a, b):
-    assert [(u.kind, u.index, u.stamps, u.final, u.flipped) for u in a] == \
-        [(u.kind, u.index, u.stamps, u.final, u.flipped) for u in b]
+    assert [(u.kind, u.index, u.stamps, u.final, u.flipped, u.preview) for u in a] == \
+        [(u.kind, u.index, u.stamps, u.final, u.flipped, u.preview) for u in b]
     for x, y in zip(a, b):
         assert [r.stamp_ns for r in x.results] == [r.stamp_ns for r in y.results]
         for r, q in zip(x.results, y.results):
@@ -55,17 +55,19 @@ def assert_same_updates(a, b):
 
 
 def test_process_and_inline_backends_give_the_same_updates():
-    """A short sequence with the rigid solver, the default 'resume' warm start: each window
-    waited for (none skipped), the child's Updates equal the inline ones bit for bit."""
+    """A short sequence with the rigid solver, the default 'resume' warm start and a preview
+    window: each window waited for (none skipped), the child's Updates equal the inline ones
+    bit for bit."""
     W, S, ids = bending_sheet(F=50, P=120, noise=0.5)
-    config = {**defaults(), 'refined_from': 'last_window'}
-    frames, windows = closed(W, ids)
+    config = {**defaults(), 'refined_from': 'last_window', 'first_model_frames': 15}
+    frames, windows = closed(W, ids, first_model_frames=15)
     inline = InlineBackend(make_mapper(config, RigidALS))
     for step in windows:
         for window in step:
             inline.submit(window)
     expected = inline.updates()
-    assert [u.kind for u in expected] == ['solved'] * 3 + ['released']
+    assert [u.kind for u in expected] == ['solved'] * 4 + ['released']
+    assert [u.preview for u in expected] == [True] + [False] * 4
     assert expected[2].results and expected[1].figures['reprojection_residual'] < 0.05
     ready = threading.Event()
     backend = ProcessBackend(config, RigidALS, notify=ready.set)

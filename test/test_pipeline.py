@@ -168,6 +168,23 @@ class Recording(InlineBackend):
         super().submit(window)
 
 
+def test_a_preview_gives_the_first_model_early_and_publishes_nothing():
+    W, S, ids = bending_sheet(F=60, noise=0.5)
+    outputs = {}
+    for frames in (0, 15):
+        p = pipeline(first_model_frames=frames)
+        outputs[frames] = reconstruct_live(p, np.arange(60), frames_of(W, ids))
+        assert p.tracking.stats['first_model_after'] == (frames or 30)
+    points, refined, updates = outputs[15]
+    assert updates[0].preview and updates[0].kind == 'solved' and updates[0].results == ()
+    assert updates[0].model is not None and list(updates[0].stamps) == list(range(15))
+    # the windows refine every frame once, as without a preview (a model that explains the
+    # frames less well may ask for a window earlier: the schedule can differ)
+    assert [r.stamp_ns for r in refined] == [r.stamp_ns for r in outputs[0][1]] == \
+        list(range(60))
+    assert not any(u.preview for u in updates[1:] + outputs[0][2])
+
+
 def test_frames_carry_the_depth_they_were_published_with():
     W, S, ids = bending_sheet(F=60, noise=0.5)
     p = pipeline()

@@ -18,6 +18,24 @@ def windows_of(windowing, W, ids):
             for w in pushed(windowing, f, fid, uv)]
 
 
+def test_a_preview_of_the_first_frames_goes_out_once_and_moves_nothing():
+    W, S, ids = bending_sheet(F=65)
+    plain = windows_of(Windowing(), W, ids)
+    windowing = Windowing(first_model_frames=15)
+    windows = windows_of(windowing, W, ids)
+    preview, rest = windows[0], windows[1:]
+    assert preview.preview and list(preview.stamps) == list(range(15))
+    assert preview.fresh == () and preview.context == () and preview.index == 0
+    assert [(w.index, list(w.stamps), w.fresh, w.preview) for w in rest] == \
+        [(w.index, list(w.stamps), w.fresh, w.preview) for w in plain]
+    assert windowing.stats['previews'] == 1 and windowing.stats['windows'] == 4
+    # a new sequence (all ids changed) gets its own preview; none at or beyond window_size
+    new = windows_of(windowing, W, ids + 10_000)
+    assert new[0].final and not new[0].preview                  # the old sequence's last
+    assert new[1].preview and new[1].sequence == 1 and windowing.stats['previews'] == 2
+    assert not any(w.preview for w in windows_of(Windowing(first_model_frames=30), W, ids))
+
+
 def test_windows_close_every_stride():
     W, S, ids = bending_sheet(F=65)
     windowing = Windowing()
@@ -30,7 +48,8 @@ def test_windows_close_every_stride():
     (last,) = windowing.flush()
     assert last.final and list(last.stamps) == list(range(40, 65))
     assert last.fresh == tuple(range(60, 65))
-    assert windowing.stats == dict(frames=65, refused=0, resets=0, windows=5, frames_dropped=0)
+    assert windowing.stats == dict(frames=65, refused=0, resets=0, windows=5, previews=0,
+                                   frames_dropped=0)
     order = np.argsort(ids)
     np.testing.assert_array_equal(windows[1].W, W[20:80][:, order])      # (2F, P), id order
     assert all(np.array_equal(w.ids, np.sort(ids)) for w in windows)
