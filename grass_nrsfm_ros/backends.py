@@ -203,6 +203,9 @@ class _Child:
                 return
 
     def _take_window(self, spec):
+        if spec.preview and self.pending is not None:       # a waiting window goes first
+            self.send(Update.of(spec, 'dropped', message='skipped'))
+            return
         self.store.prune(spec)
         if self.pending is not None:
             self.send(Update.of(self.pending, 'dropped', message='skipped'))

@@ -99,6 +99,7 @@ class Solution:
     report: object          # the solver's report
     residual: float         # ||Wc - x,y rows of S|| / ||Wc||: relative reprojection residual
     K_rot: int = None       # Dai's rank of the rotations (1: rigid), None: unknown
+    preview: bool = False   # of a preview window (its frames wait for the first window)
 
 
 @dataclass(frozen=True)
@@ -246,7 +247,8 @@ class Mapper:
         residual = float(np.linalg.norm(error) / max(np.linalg.norm(Wc * np.repeat(seen, 2, 0)),
                                                      1e-300))
         self.previous = Solution(window.sequence, problem.stamps, problem.ids, uv, S, R,
-                                 groups, report, residual, self._rank_of(report, init))
+                                 groups, report, residual, self._rank_of(report, init),
+                                 window.preview)
         return problem, as_frames(Wc, 2), Z, flipped == 'published', seen
 
     def _fit_kwargs(self, solver, problem, init, keep, progress):
@@ -296,10 +298,11 @@ class Mapper:
                     tracks_thinned=getattr(report, 'thinned_points', ''))
 
     def _releases(self, window):
-        """True for a final window whose frames the last solution holds: not solved again."""
+        """True for a final window whose frames the last solution (not a preview's) holds:
+        not solved again."""
         p = self.previous
         return (window.final and p is not None and p.sequence == window.sequence
-                and np.isin(window.stamps, p.stamps).all())
+                and not p.preview and np.isin(window.stamps, p.stamps).all())
 
     def _mirrored(self, window, problem, Z):
         """Why the solve's depth ``Z: (F, P)`` (centred per frame) must be mirrored, or None:

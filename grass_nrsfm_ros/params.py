@@ -62,7 +62,7 @@ NODE_PARAMS = (
           "Frames after which a sequence's first model is solved, before its first window "
           'closes: a preview window of the frames so far, whose model the tracking takes and '
           'whose shapes are not published on points/refined (an earlier model, often a worse '
-          'one than the rigid start-up model: docs/decisions/0444). 0, or window_size and '
+          'one than the rigid start-up model: docs/decisions/0444). Below 3, or window_size and '
           'above: none (the first model comes from the first window).', range=(0, 100000)),
     Param('context_frames', 60, int,
           'Earlier frames solved again with each window (not republished): the shape prior '

@@ -49,10 +49,12 @@ class Refinement:
     def take(self, update):
         """The FrameResults of ``update`` (an Update of the mapping) to publish, in stamp
         order."""
+        if update.preview:                  # a model only: nothing to publish or count
+            return []
         if update.kind == 'failed':
             self.stats['failed'] += 1
             return []
-        if update.kind not in ('solved', 'released') or update.preview:
+        if update.kind not in ('solved', 'released'):
             return []
         if update.kind == 'solved':
             self.stats['solved'] += 1

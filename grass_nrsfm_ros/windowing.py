@@ -18,9 +18,10 @@ Policies:
   earlier frames and ``key_frames`` older ones spread evenly over the sequence
   (docs/decisions/0035, 0036). ``push(frame, close_early=True)`` closes the next window as soon
   as more than ``window_size - window_stride`` frames wait.
-* **Preview.** Once a sequence has buffered ``first_model_frames`` frames (fewer than
-  ``window_size``) and before its first window, a preview Window of them goes out: solved
-  for a first model only (docs/decisions/0444). It moves no frame and counts as no window.
+* **Preview.** Once a sequence has buffered ``first_model_frames`` frames (at least
+  MIN_WINDOW_FRAMES, fewer than ``window_size``) and before its first window, a preview
+  Window of them goes out: solved for a first model only (docs/decisions/0444). It moves no
+  frame and counts as no window.
 * **Tracks.** A window is solved on the tracks seen in WINDOW_TRACK_SHARE of its own frames;
   where a frame does not see one, its W holds NaN (docs/decisions/0432).
 * **All ids change** (a new tracker session): a frame sharing fewer than ``min_tracks`` ids

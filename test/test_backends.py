@@ -19,7 +19,7 @@ import pytest
 
 from doubles import bending_sheet, frames_of, RigidALS, stacked as stacked_results, wait_until
 from grass_nrsfm_ros import cloud
-from grass_nrsfm_ros.backends import InlineBackend, ProcessBackend
+from grass_nrsfm_ros.backends import _Child, InlineBackend, ProcessBackend, WindowSpec
 from grass_nrsfm_ros.mapper import make_mapper
 from grass_nrsfm_ros.nrsfm.measurement import as_frames
 from grass_nrsfm_ros.nrsfm.metrics import e3d
@@ -54,6 +54,24 @@ def assert_same_updates(a, b):
             np.testing.assert_array_equal(x.model.R, y.model.R)
 
 
+def test_a_preview_never_replaces_a_window_waiting_in_the_child():
+    """The child solves the newest window waiting, but a preview (a new sequence's first
+    frames) gives way to the window waiting (the old sequence's last, say)."""
+    W, S, ids = bending_sheet(F=40, P=60)
+    _, windows = closed(W, ids, first_model_frames=15)
+    preview, first = (WindowSpec.of(w) for w in (windows[14][0], windows[29][0]))
+    sent = []
+    child = _Child(None, None, SimpleNamespace(send=sent.append), None)
+    child._take_window(first)
+    child._take_window(preview)
+    assert child.pending is first
+    assert [(u.kind, u.preview, u.message) for u in sent] == [('dropped', True, 'skipped')]
+    child.pending = None
+    child._take_window(preview)
+    child._take_window(first)                               # a window replaces a preview
+    assert child.pending is first and [u.preview for u in sent] == [True, True]
+
+
 def test_process_and_inline_backends_give_the_same_updates():
     """A short sequence with the rigid solver, the default 'resume' warm start and a preview
     window: each window waited for (none skipped), the child's Updates equal the inline ones
@@ -77,7 +95,8 @@ def test_process_and_inline_backends_give_the_same_updates():
             backend.feed(frame)
             for window in step:
                 backend.submit(window)
-                while not got or got[-1].index != window.index:     # one at a time
+                while not got or (got[-1].index, got[-1].preview) != \
+                        (window.index, window.preview):             # one at a time
                     assert ready.wait(60), 'no update from the mapping process'
                     ready.clear()
                     got += backend.updates()

@@ -183,6 +183,11 @@ def test_a_preview_gives_the_first_model_early_and_publishes_nothing():
     assert [r.stamp_ns for r in refined] == [r.stamp_ns for r in outputs[0][1]] == \
         list(range(60))
     assert not any(u.preview for u in updates[1:] + outputs[0][2])
+    # a sequence that ends with its preview: the last window solves those frames again
+    p = pipeline(first_model_frames=15)
+    _, refined, updates = reconstruct_live(p, np.arange(15), list(frames_of(W, ids))[:15])
+    assert [u.kind for u in updates] == ['solved', 'solved'] and updates[1].final
+    assert [r.stamp_ns for r in refined] == list(range(15)) and p.frames_lost == 0
 
 
 def test_frames_carry_the_depth_they_were_published_with():

@@ -441,9 +441,10 @@ def reconstruct_bag(in_path, out_path, pipeline, *, topic=bag.TRACKS_TOPIC,
                 report.frames_out += kind == 'points'
                 report.frames_refined += kind == 'refined'
             elif kind == 'update':
-                report.windows += 1
+                report.windows += not item.preview
                 if item.kind == 'failed':
-                    report.refused.append(f'window {item.index}: {item.message}')
+                    what = 'the preview window' if item.preview else f'window {item.index}'
+                    report.refused.append(f'{what}: {item.message}')
             else:
                 stamp, exc = item
                 report.refused.append(f'frame {report.frames_in - 1} (stamp {stamp}): {exc}')
