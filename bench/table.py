@@ -169,16 +169,33 @@ def live_table(doc):
             if 'frames' not in r:
                 continue                        # an offline reference without its node run
             offline = r.get('offline_e3d_points')
+            e3d_node = r.get('e3d_received_median', r['e3d_received'])
             versus = '-' if offline is None else \
-                f'{fmt(offline)} ({fmt(r["e3d_received"] / offline, 3)})'
+                f'{fmt(offline)} ({fmt(e3d_node / offline, 3)})'
             lines.append(f'| {key} tracks | {r["frames_received"]} / {r["frames"]} | '
                          f'{fmt(r["latency_ms_p50"], 1)} / {fmt(r["latency_ms_p95"], 1)} / '
-                         f'{fmt(r["latency_ms_max"], 1)} | {fmt(r["e3d_received"])} | '
-                         f'{versus} | '
-                         f'{r["diagnostics"].get("first model after frames", "-")} frames | '
+                         f'{fmt(r["latency_ms_max"], 1)} | {node_e3d(r)} | {versus} | '
+                         f'{node_first_models(r)} frames | '
                          f'{r["diagnostics"].get("model age frames") or "-"} frames | '
                          f'{r.get("environment", {}).get("git") or "-"} |')
     return lines + load_table()
+
+
+def node_e3d(run):
+    """A node run's e3D: the median of its repeats with their range, or the one run's."""
+    every = [r['e3d_received'] for r in run.get('runs', ()) if 'e3d_received' in r]
+    if len(every) < 2:
+        return fmt(run['e3d_received'])
+    return f"{fmt(run['e3d_received_median'])} ({fmt(min(every))}-{fmt(max(every))}, " \
+        f'{len(every)} runs)'
+
+
+def node_first_models(run):
+    """Frames before a node run's first model (each repeat's where recorded)."""
+    every = [r['first_model_after_frames'] for r in run.get('runs', ())
+             if r.get('first_model_after_frames') is not None]
+    return ', '.join(every) if len(every) > 1 else \
+        run['diagnostics'].get('first model after frames', '-')
 
 
 #: the reliability.json runs of bench/load.py the live section shows
