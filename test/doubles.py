@@ -317,7 +317,7 @@ class ChunkPipeline:
         if self.buffer:
             self._refined += self.buffer
             self._updates.append(SimpleNamespace(kind='solved', index=len(self._updates),
-                                                 message=''))
+                                                 message='', preview=False))
         self.buffer = []
 
     def refined(self):

@@ -147,14 +147,18 @@ class Feeder(SpunNode):
 
     def new_publisher(self, depth=10):
         """Replace our ``tracks`` writer (KEEP_LAST ``depth``, reliable) once the node has seen
-        the old one go, and wait until the new one is connected."""
+        the old one go, and wait until the new one is connected to the node's reliable reader.
+        (With no publisher the node ('auto') reads best effort; it resubscribes reliable within
+        a second of seeing ours. Clouds sent before are lost in the switch: a fresh-clone CI run
+        lost some of the 40 sent at once.)"""
         self.node.destroy_publisher(self.pub)
         gone = time.monotonic()
         assert self.wait_for(
             lambda: self.node_reports(gone).get('tracks publishers') == '0', 20)
         self.pub = self.node.create_publisher(PointCloud2, 'tracks', depth)
         self.pub_created = time.monotonic()
-        assert self.wait_for(self.connected, 20)
+        assert self.wait_for(lambda: self.connected() and self.node_reports(
+            self.pub_created).get('input reliability') == 'reliable', 20)
 
     def use_depth(self, depth):
         """Publish ``tracks`` with a KEEP_LAST history of ``depth`` (reliable) from now on."""
