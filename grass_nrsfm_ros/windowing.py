@@ -166,11 +166,10 @@ class Windowing:
                  key_frames=30, first_model_frames=0):
         params.check_window(window_size=window_size, window_stride=window_stride,
                             min_tracks=min_tracks, context_frames=context_frames,
-                            key_frames=key_frames)
+                            key_frames=key_frames, first_model_frames=first_model_frames)
         self.window_size, self.window_stride = int(window_size), int(window_stride)
         self.min_tracks, self.context_frames = int(min_tracks), int(context_frames)
         self.key_frames = int(key_frames) if self.context_frames else 0
-        params.check_window(first_model_frames=first_model_frames)
         self.first_model_frames = int(first_model_frames)
         self.sequence = 0
         self._frames = []               # buffered Frames, ascending stamps
