@@ -48,6 +48,54 @@ def test_pinhole_bending_sheet_beats_rigid_by_the_bar():
     assert ours <= BAR * rigid
 
 
+def test_anchors_leave_out_drifting_tracks():
+    """15 of 300 tracks drift (a random walk from frame 0, up to about 26 px at f = 620): none
+    of them is an anchor (farthest-point sampling over all tracks picked 6 of 60) and the
+    clean tracks stay within the bar (0.27 of rigid; 0.29 with those anchors)."""
+    W, S = pinhole_bending(P=300)
+    rng = np.random.default_rng(0)
+    drifting = rng.choice(300, 15, replace=False)
+    W[:, drifting] += np.cumsum(0.004 * rng.standard_normal((10, 2, 15)), axis=0).reshape(20, 15)
+    clean = np.setdiff1d(np.arange(300), drifting)
+    consistent = max_depth.consistent_tracks(W, max_depth.trajectory_embedding(W))
+    assert not np.isin(drifting, consistent).any()
+    assert np.isin(clean, consistent).mean() >= 0.85
+    result = max_depth.MaxDepthNRSfM(max_tracks=60).fit(W)
+    assert result.anchors.size == 60 and not np.isin(result.anchors, drifting).any()
+    rigid = metrics.e3d(rigid_factorisation(W)[1][:, clean], S[:, clean], scale=True)
+    assert metrics.e3d(result.S[:, clean], S[:, clean], scale=True) <= BAR * rigid
+
+
+def test_long_sequences_take_their_lengths_from_key_frames():
+    """12 frames, lengths from 4 of them (0, 4, 7, 11): the key frames are the LP on them
+    alone, every other frame's depths meet those lengths, the output still projects onto the
+    tracks and beats rigid by the bar."""
+    W, S = pinhole_bending(F=12, P=80)
+    result = max_depth.MaxDepthNRSfM(max_tracks=40, key_frames=4, refine=False).fit(W)
+    assert result.info['key_frames'] == 4
+    np.testing.assert_allclose(camera.project(result.S), W, atol=1e-12)
+    keys, sub = [0, 4, 7, 11], W[:, result.anchors]
+    i, j = max_depth.neighbour_edges(sub, max_depth.NEIGHBOURS)
+    Z_keys, d, _ = max_depth.max_depth(sub[max_depth.frame_rows(keys, 2)], (i, j))
+    Z = result.Z[:, result.anchors]
+    scale = Z[keys] / Z_keys                            # the output's one global scale
+    np.testing.assert_allclose(scale, scale.mean(), rtol=1e-9)
+    q = max_depth._rays(sub)
+    lengths = np.linalg.norm(Z[:, i, None] * q[:, i] - Z[:, j, None] * q[:, j], axis=-1)
+    assert (lengths / scale.mean() <= (1 + max_depth.TOL) * d[None] + 1e-12).all()
+    rigid = metrics.e3d(rigid_factorisation(W)[1], S, scale=True)
+    assert metrics.e3d(result.S, S, scale=True) <= BAR * rigid
+
+
+def test_given_lengths_solve_one_frame():
+    W, _ = pinhole_bending(F=4, P=40)
+    edges = max_depth.neighbour_edges(W, 6)
+    Z, d, _ = max_depth.max_depth(W, edges)
+    Z1, d1, _ = max_depth.max_depth(W[6:8], edges, lengths=d)
+    np.testing.assert_array_equal(d1, d)
+    np.testing.assert_allclose(Z1[0], Z[3], rtol=0.05)
+
+
 @pytest.mark.parametrize('name, bar', [('kinect_paper', 0.09), ('white_cartoon_tshirt', 0.11)])
 def test_real_subsets_meet_their_bars(dataset, name, bar):
     W, S = dataset(f'perspective_subsets/{name}.npz')
@@ -61,7 +109,8 @@ def test_incomplete_tracks_are_refused():
         max_depth.MaxDepthNRSfM().fit(W)
 
 
-@pytest.mark.parametrize('params', [{'neighbours': 1}, {'max_tracks': 2.5}, {'tol': 0}])
+@pytest.mark.parametrize('params', [{'neighbours': 1}, {'max_tracks': 2.5}, {'tol': 0},
+                                    {'key_frames': 1}])
 def test_bad_parameters_are_refused(params):
     W, _ = pinhole_bending(F=4, P=40)
     with pytest.raises(InvalidInputError, match=next(iter(params))):

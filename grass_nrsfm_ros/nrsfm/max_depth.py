@@ -26,9 +26,12 @@ are then fitted to the lengths as equalities, ``min_Z sum_e (||Z_i q_i - Z_j q_j
 (``scipy.optimize.least_squares``, its sparse Jacobian), started from the LP's depths.
 
 :class:`MaxDepthNRSfM` (``fit(W) -> MaxDepthResult`` with ``S``) solves the LP on at most
-``max_tracks`` tracks spread over the sheet (:func:`anchor_tracks`) and gives the others the
-depth of the plane through their nearest anchors in each frame (:func:`interpolated_depths`):
-the LP's cost grows faster than its size (10 x 90: 6 s, 40 x 100: 50-75 s CPU).
+``max_tracks`` tracks spread over the sheet, none that its neighbours contradict
+(:func:`anchor_tracks`), and gives the others the depth of the plane through their nearest
+anchors in each frame (:func:`interpolated_depths`): the LP's cost grows faster than its size
+(10 x 90: 6 s, 40 x 100: 50-75 s CPU). On sequences longer than ``key_frames``, the lengths
+come from the LP on that many frames spread over it; every other frame, independent given
+the lengths, from an LP of its depths alone.
 
 Orthographic tracks have parallel rays: the depths are then unbounded (any depth translation
 is feasible), so MDH is for pinhole tracks only.
@@ -44,8 +47,10 @@ from scipy.optimize import least_squares, linprog
 import scipy.sparse as sp
 from sklearn.neighbors import NearestNeighbors
 
+from .density import affine_weights
 from .inextensible import neighbour_edges, trajectory_embedding
-from .measurement import as_frames, from_frames, InvalidInputError, validate_tracks
+from .measurement import (as_frames, centre, frame_rows, from_frames, InvalidInputError,
+                          track_scale, validate_tracks)
 
 #: neighbours per track in the edge graph
 NEIGHBOURS = 8
@@ -57,6 +62,15 @@ PRUNE = 0.05
 MAX_CUTS = 30
 #: tracks the LP solves (the rest interpolated)
 MAX_TRACKS = 100
+#: frames the lengths are solved on; a longer sequence's other frames take those lengths
+KEY_FRAMES = 40
+#: frames per LP of the other frames (independent given the lengths)
+LENGTH_CHUNK = 10
+#: an anchor's trajectory is reproduced by its neighbours' within this many times the median
+#: track's residual (record 0723)
+CONSISTENT = 2.0
+#: Tikhonov regularisation of those reconstruction weights, relative to the trace
+CONSISTENCY_REGULARISATION = 1e-3
 
 
 def _rays(W):
@@ -92,19 +106,25 @@ def _cut_rows(a, q, i, j, frames, edges, P, E):
     return sp.csr_matrix((vals, (rows, cols)), shape=(n, q.shape[0] * P + E))
 
 
-def max_depth(W, edges=None, *, k=NEIGHBOURS, tol=TOL, max_cuts=MAX_CUTS):
+def max_depth(W, edges=None, *, k=NEIGHBOURS, tol=TOL, max_cuts=MAX_CUTS, lengths=None):
     """MDH depths of the normalised tracks ``W: (2F, P)`` over ``edges = (i, j)`` (default:
     :func:`.inextensible.neighbour_edges` with ``k``). Returns ``(Z: (F, P), d: (E,), info)``
     with ``sum(d) = 1``; info: edges, cutting rounds, cuts, the largest relative violation
-    left and the LP's seconds."""
-    x = validate_tracks(W, min_frames=2, min_points=4)
+    left and the LP's seconds. ``lengths: (E,)``: ``d`` given (from other frames of the same
+    sheet), only the depths solved; then one frame is enough."""
+    x = validate_tracks(W, min_frames=1 if lengths is not None else 2, min_points=4)
     i, j = edges if edges is not None else neighbour_edges(x, k)
     i, j = np.asarray(i, dtype=np.intp), np.asarray(j, dtype=np.intp)
     q = _rays(x)
     F, P, _ = q.shape
     E = i.size
     cost = np.r_[-np.ones(F * P), np.zeros(E)] / (F * P)
-    A_eq = sp.csr_matrix(np.r_[np.zeros(F * P), np.ones(E)][None])
+    if lengths is None:
+        A_eq, b_eq, bounds = sp.csr_matrix(np.r_[np.zeros(F * P), np.ones(E)][None]), [1.0], \
+            (0, None)
+    else:
+        A_eq, b_eq = None, None
+        bounds = np.c_[np.r_[np.zeros(F * P), lengths], np.r_[np.full(F * P, np.inf), lengths]]
     dirs = _initial_directions(q, i, j)
     ff, ee = np.meshgrid(np.arange(F), np.arange(E), indexing='ij')
     m = dirs.shape[2]
@@ -114,8 +134,8 @@ def max_depth(W, edges=None, *, k=NEIGHBOURS, tol=TOL, max_cuts=MAX_CUTS):
     worst, rounds, cuts = np.inf, 0, blocks[0].shape[0]
     for rounds in range(1, max_cuts + 1):
         A = sp.vstack(blocks).tocsr()
-        res = linprog(cost, A_ub=A, b_ub=np.zeros(A.shape[0]), A_eq=A_eq, b_eq=[1.0],
-                      bounds=(0, None), method='highs-ipm')
+        res = linprog(cost, A_ub=A, b_ub=np.zeros(A.shape[0]), A_eq=A_eq, b_eq=b_eq,
+                      bounds=bounds, method='highs-ipm')
         if res.status != 0:
             raise RuntimeError(f'max_depth: the LP failed ({res.message})')
         Z = res.x[:F * P].reshape(F, P)
@@ -171,18 +191,38 @@ def shapes(W, Z):
 def anchor_tracks(W, n):
     """``(n,)`` indices of tracks of ``W: (2F, P)`` spread over the surface: farthest-point
     sampling in the trajectory embedding (:func:`.inextensible.trajectory_embedding`), from
-    the track nearest the centroid."""
+    the track nearest the centroid, among the :func:`consistent_tracks` (record 0723)."""
     X = trajectory_embedding(W)
     P = X.shape[0]
     if n >= P:
         return np.arange(P)
+    candidates = consistent_tracks(W, X)
+    if candidates.size <= n:
+        candidates = np.arange(P)
+    X = X[candidates]
     chosen = np.empty(n, dtype=np.intp)
     chosen[0] = np.argmin(np.linalg.norm(X - X.mean(0), axis=1))
     dist = np.linalg.norm(X - X[chosen[0]], axis=1)
     for m in range(1, n):
         chosen[m] = np.argmax(dist)
         dist = np.minimum(dist, np.linalg.norm(X - X[chosen[m]], axis=1))
-    return np.sort(chosen)
+    return np.sort(candidates[chosen])
+
+
+def consistent_tracks(W, X):
+    """``(P',)`` sorted indices of the tracks of ``W: (2F, P)`` whose trajectory the affine
+    combination of their NEIGHBOURS nearest (in the embedding ``X: (P, n)``) reproduces within
+    CONSISTENT times the median track's residual (locally linear weights,
+    :func:`.density.affine_weights`): not the drifting or noisy ones, which tracks at a
+    sheet's border often are."""
+    Wc = centre(W)[0]
+    T = (Wc / track_scale(Wc)).T                                            # (P, 2F)
+    k = min(NEIGHBOURS, T.shape[0] - 1)
+    near = NearestNeighbors(n_neighbors=k + 1).fit(X).kneighbors(
+        X, return_distance=False)[:, 1:]                                   # (P, k), not itself
+    weights = affine_weights(T[near] - T[:, None, :], CONSISTENCY_REGULARISATION)
+    residual = np.linalg.norm(np.einsum('pk,pkn->pn', weights, T[near]) - T, axis=1)
+    return np.flatnonzero(residual <= CONSISTENT * np.median(residual))
 
 
 def interpolated_depths(W, anchors, Z_anchor, k=NEIGHBOURS):
@@ -219,16 +259,21 @@ class MaxDepthNRSfM:
     :class:`MaxDepthResult`. ``neighbours``: edges per track; ``max_tracks``: the LP runs on
     at most this many tracks (:func:`anchor_tracks`), the others' depths are interpolated
     (:func:`interpolated_depths`); ``tol``: the cones' relative tolerance; ``refine``: the
-    LP's depths fitted to its lengths as equalities (:func:`refined_depths`, record 0720)."""
+    LP's depths fitted to its lengths as equalities (:func:`refined_depths`, record 0720);
+    ``key_frames``: on longer sequences the lengths come from the LP on this many frames
+    spread over the sequence, and each other frame's depths from the LP with those lengths
+    (record 0724)."""
 
-    def __init__(self, neighbours=NEIGHBOURS, max_tracks=MAX_TRACKS, tol=TOL, refine=True):
+    def __init__(self, neighbours=NEIGHBOURS, max_tracks=MAX_TRACKS, tol=TOL, refine=True,
+                 key_frames=KEY_FRAMES):
         self.neighbours = neighbours
         self.max_tracks = max_tracks
         self.tol = tol
         self.refine = refine
+        self.key_frames = key_frames
 
     def _checked(self):
-        for name, low in (('neighbours', 2), ('max_tracks', 4)):
+        for name, low in (('neighbours', 2), ('max_tracks', 4), ('key_frames', 2)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or \
                     value < low:
@@ -245,7 +290,7 @@ class MaxDepthNRSfM:
         anchors = anchor_tracks(x, int(self.max_tracks))
         sub = x[:, anchors]
         edges = neighbour_edges(sub, int(self.neighbours))
-        Z_a, d, info = max_depth(sub, edges, tol=self.tol)
+        Z_a, d, info = self._anchor_depths(sub, edges)
         if self.refine:
             t0 = time.process_time()
             Z_a = refined_depths(sub, Z_a, d, edges)
@@ -253,3 +298,22 @@ class MaxDepthNRSfM:
         Z = interpolated_depths(x, anchors, Z_a, self.neighbours)
         Z = Z / Z.mean()
         return MaxDepthResult(S=shapes(x, Z), Z=Z, anchors=anchors, info=info)
+
+    def _anchor_depths(self, sub, edges):
+        """``(Z: (F, n), d, info)`` of the anchors' tracks ``sub: (2F, n)``: the LP on every
+        frame, or on ``key_frames`` of them and then, with their lengths, on the others
+        (LENGTH_CHUNK frames per LP)."""
+        F = sub.shape[0] // 2
+        keys = np.unique(np.linspace(0, F - 1, min(F, int(self.key_frames))).round().astype(int))
+        Z_keys, d, info = max_depth(sub[frame_rows(keys, 2)], edges, tol=self.tol)
+        if keys.size == F:
+            return Z_keys, d, info
+        Z = np.empty((F, sub.shape[1]))
+        Z[keys] = Z_keys
+        others = np.setdiff1d(np.arange(F), keys)
+        t0 = time.process_time()
+        for chunk in np.array_split(others, -(-others.size // LENGTH_CHUNK)):
+            Z[chunk] = max_depth(sub[frame_rows(chunk, 2)], edges, tol=self.tol, lengths=d)[0]
+        info.update(key_frames=int(keys.size),
+                    other_frames_seconds_cpu=time.process_time() - t0)
+        return Z, d, info

@@ -87,6 +87,12 @@ def as_frames(M, rows_per_frame):
     return M.reshape(-1, rows_per_frame, M.shape[-1])
 
 
+def frame_rows(frames, rows_per_frame):
+    """``(len(frames) * rows_per_frame,)`` row indices of ``frames: (n,)`` in a matrix of
+    ``rows_per_frame`` rows per frame (``W: (2F, P)``: 2, ``S: (3F, P)``: 3)."""
+    return (rows_per_frame * np.asarray(frames)[:, None] + np.arange(rows_per_frame)).ravel()
+
+
 def from_frames(X):
     """Stack ``X: (F, r, P)`` back to ``(rF, P)``."""
     return X.reshape(-1, X.shape[-1])

@@ -11,8 +11,8 @@ Both take ``S: (3F, P)`` in camera coordinates.
 """
 import numpy as np
 
-from .measurement import (as_frames, from_frames, InvalidInputError, nearest_rotation,
-                          validate_shapes)
+from .measurement import (as_frames, frame_rows, from_frames, InvalidInputError,
+                          nearest_rotation, validate_shapes)
 
 
 def _nearest_orthogonal(M, reflection):
@@ -71,7 +71,7 @@ def e3d(S_est, S_gt, *, scale=False, reflection=True, centre=True, per_frame=Fal
         if per_frame:
             out = np.full(visible.shape[0], np.nan)
         frames = np.flatnonzero(visible.any(axis=1))
-        rows = (3 * frames[:, None] + np.arange(3)).ravel()
+        rows = frame_rows(frames, 3)
         visible = visible[frames]
         S_gt, S_est = (np.where(np.repeat(visible, 3, axis=0),
                                 np.asarray(S, dtype=np.float64)[rows], 0.0)
