@@ -430,7 +430,8 @@ SECTIONS = (('accuracy', 'Accuracy', 'e3D; "A": Akhter\'s metric, the one of the
             ('camera_pipeline', 'Images to points over DDS', 'Images at 30 Hz -> tracker node '
              '-> reconstruction node (`python -m bench.camera_pipeline`)', camera_pipeline_table),
             ('kinect_paper', "The paper's kinect_paper sequence", 'From its 191 images; e3D on '
-             'the ground truth located in it, records 0622, 0722 (`python -m bench.kinect_paper`)',
+             'the ground truth located in it, records 0622, 0722, 0723, 0724 '
+             '(`python -m bench.kinect_paper`)',
              kinect_paper_table),
             ('perspective', 'Perspective', 'The projective-depth iteration; e3D with a '
              'per-frame scale (`python -m bench.perspective`)', perspective_table),
