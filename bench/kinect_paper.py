@@ -49,6 +49,7 @@ from grass_nrsfm_ros.commands.track import tracks_matrix
 from grass_nrsfm_ros.frontend import DenseTracker
 from grass_nrsfm_ros.frontend.sources import open_source
 from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM
+from grass_nrsfm_ros.nrsfm.measurement import frame_rows
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
 from grass_nrsfm_ros.params import defaults
 from grass_nrsfm_ros.pipeline import make_pipeline, reconstruct_live
@@ -158,7 +159,7 @@ def subset_e3d(S_est, match, S_gt):
     """e3D (per frame Procrustes with scale) of the truth points' reconstruction (the same
     affine combination of their tracks' shapes) in the located frames against the truth
     ``S_gt: (3G, N)``."""
-    rows = (3 * match['frames'][:, None] + np.arange(3)).ravel()
+    rows = frame_rows(match['frames'], 3)
     shapes = S_est[rows][:, match['tracks']]                                   # (3G, n, k)
     estimate = np.einsum('rnk,nk->rn', shapes, match['weights'])
     return e3d(estimate, S_gt[:, match['tied']], scale=True)

@@ -42,7 +42,7 @@ from grass_nrsfm_ros import cloud
 from grass_nrsfm_ros.mapper import make_mapper
 from grass_nrsfm_ros.nrsfm import GrassmannNRSfM
 from grass_nrsfm_ros.nrsfm.faces import make_face_sequence
-from grass_nrsfm_ros.nrsfm.measurement import as_frames
+from grass_nrsfm_ros.nrsfm.measurement import as_frames, frame_rows
 from grass_nrsfm_ros.nrsfm.metrics import e3d
 from grass_nrsfm_ros.params import defaults, MAPPINGS, MIN_WINDOW_FRAMES, WINDOW_KEYS
 from grass_nrsfm_ros.pipeline import live_events, make_pipeline, reconstruct_live
@@ -173,8 +173,7 @@ def compare(name, W, S, mapping_tracks):
            'windows_cpu_from_third_window_s': mean_or_none(cpu_windows[2:])}
     startup = row['F'] if first is None else first
     at = causal_frames(row['F'], startup)
-    rows3 = (3 * at[:, None] + np.arange(3)).ravel()
-    causal = e3d(causal_reference(W, at), S[rows3], per_frame=True)
+    causal = e3d(causal_reference(W, at), S[frame_rows(at, 3)], per_frame=True)
     early = at < startup
     row.update(causal_frames=at.tolist(), e3d_causal_per_frame=causal.tolist())
     for part, chosen in (('startup', early), ('later', ~early)):

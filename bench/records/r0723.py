@@ -18,7 +18,7 @@ import numpy as np
 from bench import kinect_paper as kp
 from bench.common import data_root
 from grass_nrsfm_ros.nrsfm import camera, max_depth, metrics, synthetic
-from grass_nrsfm_ros.nrsfm.measurement import as_frames, from_frames
+from grass_nrsfm_ros.nrsfm.measurement import as_frames, frame_rows, from_frames
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
 
 SHIPPED = max_depth.anchor_tracks
@@ -65,12 +65,12 @@ def kinect():
         W_gt_px, S_gt = npz['W_px'].astype(np.float64), npz['S'].astype(np.float64)
     match = kp.locate_subset(W_px, W_gt_px, 3.0)
     frames = match['frames']
-    x = kp.normalised(W_px[(2 * frames[:, None] + np.arange(2)).ravel()], K)
+    x = kp.normalised(W_px[frame_rows(frames, 2)], K)
     F3 = 3 * (W_px.shape[0] // 2)
 
     def score(S_frames):
         S = np.full((F3, W_px.shape[1]), np.nan)
-        S[(3 * frames[:, None] + np.arange(3)).ravel()] = S_frames
+        S[frame_rows(frames, 3)] = S_frames
         return kp.subset_e3d(S, match, S_gt)
     print(f'kinect_paper: {W_px.shape[1]} complete tracks, located frames {frames + 1}')
     print(f'  rigid on the tracks: {score(rigid_factorisation(x)[1]):.4f}')
