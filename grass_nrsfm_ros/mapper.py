@@ -45,8 +45,10 @@ CONTEXT_TRACKS = 0.9
 #: context is carried until the frames new since that check reach this share of its frames
 RECHECK_SHARE = 0.5
 #: the largest ADMM penalty of a window with context under 'resume' (docs/decisions/0408, 0425)
-#: and of a window started from the rigid factorisation (docs/decisions/0435)
 WINDOW_BETA_MAX = 10.0
+#: the largest ADMM penalty of a window started from the rigid factorisation, a sequence's
+#: first: its model comes sooner (docs/decisions/0435, 0445)
+FIRST_WINDOW_BETA_MAX = 1.0
 #: a window with unseen entries is solved without the solver's refill rounds: they cost 37 %
 #: more mapping CPU at 10,000 tracks for 0.7 % of refined e3D on live windows (docs/decisions/
 #: 0802)
@@ -254,10 +256,10 @@ class Mapper:
     def _fit_kwargs(self, solver, problem, init, keep, progress):
         """The keywords of this solve's ``fit``: the start, the window's completion (the
         solver completes no window again) and no refill round (WINDOW_REFILL_ROUNDS), the
-        progress callback and, for a
-        window with context under 'resume' (resumed, or the second window of a sequence) and a
-        window started from the rigid factorisation (a sequence's first), the penalty cap
-        WINDOW_BETA_MAX (docs/decisions/0425, 0435)."""
+        progress callback and a penalty cap (never below the solver's beta0): for a window
+        started from the rigid factorisation (a sequence's first) FIRST_WINDOW_BETA_MAX
+        (docs/decisions/0445), for a window with context under 'resume' (resumed, or the
+        second window of a sequence) WINDOW_BETA_MAX (docs/decisions/0425)."""
         kwargs = {} if init is None else {'init': subset_init(init, keep)}
         if not problem.seen.all():
             if _accepts(solver.fit, 'filled'):
@@ -266,10 +268,11 @@ class Mapper:
                 kwargs['refill_rounds'] = WINDOW_REFILL_ROUNDS
         if progress is not None and _accepts(solver.fit, 'progress'):
             kwargs['progress'] = progress
-        capped = (self.warm_start == 'resume' and problem.n_context) or \
-            self.started_from == 'rigid'
-        if capped and hasattr(solver, 'get_params') and _accepts(solver.fit, 'beta_max'):
-            kwargs['beta_max'] = min(solver.get_params()['beta_max'], WINDOW_BETA_MAX)
+        cap = FIRST_WINDOW_BETA_MAX if self.started_from == 'rigid' else \
+            WINDOW_BETA_MAX if self.warm_start == 'resume' and problem.n_context else None
+        if cap and hasattr(solver, 'get_params') and _accepts(solver.fit, 'beta_max'):
+            values = solver.get_params()
+            kwargs['beta_max'] = min(values['beta_max'], max(cap, values['beta0']))
         return kwargs
 
     def _results(self, problem, XY, Z, seen):

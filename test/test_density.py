@@ -3,6 +3,7 @@ and thinned, uniform tracks left exactly alone, dropped tracks filled in correct
 solve of a clustered stretching surface checked against ground truth."""
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from grass_nrsfm_ros.nrsfm import density, GrassmannNRSfM, InvalidInputError, WarmStart
@@ -56,6 +57,20 @@ def test_fill_in_the_leading_trajectory_directions_matches_the_whole_trajectorie
         errors.append(np.sqrt(np.mean((filled[:, 2, dropped] - Z[:, dropped]) ** 2)) / Z.std())
     assert errors[0] < 0.005, errors                  # measured 0.0004-0.0039
     assert errors[0] < errors[1] + 1e-4, errors
+
+
+def test_nearest_matches_a_brute_force_search():
+    """The k-d tree's neighbours (nearest first) and distances are a brute-force search's, for
+    k = 1 and k = 8, on 24-dimensional points."""
+    rng = np.random.default_rng(1)
+    points, queries = rng.normal(size=(300, 24)), rng.normal(size=(50, 24))
+    brute = np.linalg.norm(queries[:, None, :] - points[None, :, :], axis=2)
+    order = np.argsort(brute, axis=1)
+    for k in (1, 8):
+        dist, idx = density.nearest(cKDTree(points), queries, k)
+        assert idx.shape == dist.shape == (50, k)
+        np.testing.assert_array_equal(idx, order[:, :k])
+        np.testing.assert_allclose(dist, np.take_along_axis(brute, order[:, :k], axis=1))
 
 
 @pytest.mark.parametrize('kind', kinds())

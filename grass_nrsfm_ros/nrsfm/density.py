@@ -21,7 +21,7 @@ Shapes: ``W: (2F, P)``, ``S: (3F, P)``, ``keep: (P',)`` sorted indices of the ke
 """
 import numpy as np
 import scipy.sparse as sp
-from sklearn.neighbors import NearestNeighbors
+from scipy.spatial import cKDTree
 
 from .inextensible import trajectory_embedding
 from .measurement import as_frames, centre, economy_svd, from_frames, track_scale
@@ -56,15 +56,15 @@ def track_density(W, random_state=0):
     sample = np.arange(P) if P <= DENSITY_SAMPLE else np.sort(
         np.random.default_rng(random_state).choice(P, DENSITY_SAMPLE, replace=False))
     k = min(max(DENSITY_NEIGHBOURS, int(DENSITY_SPAN * sample.size)), sample.size - 1)
-    tree = NearestNeighbors(n_neighbors=k + 1).fit(X[sample])
-    dist = tree.kneighbors(X[sample])[0][:, k]
+    tree = cKDTree(X[sample])
+    dist = nearest(tree, X[sample], k + 1)[0][:, k]
     dist = np.maximum(dist, 1e-12 * max(dist.max(), 1e-300))
     density = 1.0 / dist ** 2
     order = np.argsort(density)
     area = np.cumsum(1.0 / density[order])
     reference = float(density[order][np.searchsorted(area, 0.5 * area[-1])])
     if sample.size < P:
-        density = density[tree.kneighbors(X, n_neighbors=1, return_distance=False)[:, 0]]
+        density = density[nearest(tree, X, 1)[1][:, 0]]
     return density, reference
 
 
@@ -113,8 +113,7 @@ def _reconstruction_weights(Wc, keep, dropped, k=FILL_NEIGHBOURS):
     if FILL_DIMS is not None and FILL_DIMS < Wc.shape[0]:
         Wc = economy_svd(Wc[:, keep])[0][:, :FILL_DIMS].T @ Wc          # (FILL_DIMS, P)
     W_kept = Wc[:, keep]
-    nbrs = NearestNeighbors(n_neighbors=k).fit(W_kept.T).kneighbors(
-        Wc[:, dropped].T, return_distance=False)                   # nearest first
+    nbrs = nearest(cKDTree(W_kept.T), Wc[:, dropped].T, k)[1]     # nearest first
     weights = np.empty(nbrs.shape)
     kept_rows = np.ascontiguousarray(W_kept.T)                       # (P', 2F)
     dropped_rows = np.ascontiguousarray(Wc[:, dropped].T)             # (D, 2F)
@@ -124,6 +123,12 @@ def _reconstruction_weights(Wc, keep, dropped, k=FILL_NEIGHBOURS):
         diff = kept_rows[nbrs[part]] - dropped_rows[part][:, None, :]      # (d, k, 2F)
         weights[part] = affine_weights(diff)
     return nbrs, weights
+
+
+def nearest(tree, queries, k):
+    """``(distances, indices)``, each ``(Q, k)`` nearest first: the ``k`` points of ``tree`` (a
+    :class:`scipy.spatial.cKDTree`) nearest each row of ``queries: (Q, n)``."""
+    return tree.query(queries, k=list(range(1, k + 1)))
 
 
 def affine_weights(diff, regularisation=FILL_REGULARISATION):
