@@ -57,7 +57,7 @@ def test_anchors_leave_out_drifting_tracks():
     drifting = rng.choice(300, 15, replace=False)
     W[:, drifting] += np.cumsum(0.004 * rng.standard_normal((10, 2, 15)), axis=0).reshape(20, 15)
     clean = np.setdiff1d(np.arange(300), drifting)
-    consistent = max_depth.consistent_tracks(W, max_depth.trajectory_embedding(W))
+    consistent = max_depth.consistent_tracks(W)
     assert not np.isin(drifting, consistent).any()
     assert np.isin(clean, consistent).mean() >= 0.85
     result = max_depth.MaxDepthNRSfM(max_tracks=60).fit(W)

@@ -27,7 +27,7 @@ SHIPPED = max_depth.anchor_tracks
 def every_track(W, n):
     """Record 0709's anchors: farthest-point sampling over all tracks."""
     original = max_depth.consistent_tracks
-    max_depth.consistent_tracks = lambda W, X: np.arange(W.shape[1])
+    max_depth.consistent_tracks = lambda W: np.arange(W.shape[1])
     try:
         return SHIPPED(W, n)
     finally:

@@ -47,6 +47,7 @@ from scipy.optimize import least_squares, linprog
 import scipy.sparse as sp
 from sklearn.neighbors import NearestNeighbors
 
+from . import isometry
 from .density import affine_weights
 from .inextensible import neighbour_edges, trajectory_embedding
 from .measurement import (as_frames, centre, frame_rows, from_frames, InvalidInputError,
@@ -196,7 +197,7 @@ def anchor_tracks(W, n):
     P = X.shape[0]
     if n >= P:
         return np.arange(P)
-    candidates = consistent_tracks(W, X)
+    candidates = consistent_tracks(W)
     if candidates.size <= n:
         candidates = np.arange(P)
     X = X[candidates]
@@ -209,17 +210,15 @@ def anchor_tracks(W, n):
     return np.sort(candidates[chosen])
 
 
-def consistent_tracks(W, X):
+def consistent_tracks(W):
     """``(P',)`` sorted indices of the tracks of ``W: (2F, P)`` whose trajectory the affine
-    combination of their NEIGHBOURS nearest (in the embedding ``X: (P, n)``) reproduces within
+    combination of their NEIGHBOURS nearest (:func:`.isometry.neighbours`) reproduces within
     CONSISTENT times the median track's residual (locally linear weights,
     :func:`.density.affine_weights`): not the drifting or noisy ones, which tracks at a
     sheet's border often are."""
     Wc = centre(W)[0]
     T = (Wc / track_scale(Wc)).T                                            # (P, 2F)
-    k = min(NEIGHBOURS, T.shape[0] - 1)
-    near = NearestNeighbors(n_neighbors=k + 1).fit(X).kneighbors(
-        X, return_distance=False)[:, 1:]                                   # (P, k), not itself
+    near = isometry.neighbours(W, NEIGHBOURS)                              # (P, k), not itself
     weights = affine_weights(T[near] - T[:, None, :], CONSISTENCY_REGULARISATION)
     residual = np.linalg.norm(np.einsum('pk,pkn->pn', weights, T[near]) - T, axis=1)
     return np.flatnonzero(residual <= CONSISTENT * np.median(residual))
