@@ -161,27 +161,35 @@ def _intersection_starts(N, n, rng, n_starts):
 
 # ----------------------------------------------------------------------------- refinement
 
+def _orthonormality_terms(g, a, b):
+    """``(r1, r2: (F, 3), n1, n2, d, s: (F,))`` of ``G = g.reshape(n, 3)``: the rows
+    ``a G``, ``b G``, their squared norms, their dot product and ``n1 + n2``."""
+    G = g.reshape(a.shape[1], 3)
+    r1, r2 = a @ G, b @ G
+    n1, n2 = (r1 ** 2).sum(1), (r2 ** 2).sum(1)
+    return r1, r2, n1, n2, (r1 * r2).sum(1), np.maximum(n1 + n2, 1e-300)
+
+
 def _orthonormality_residual(g, a, b):
-    """Scale-free orthonormality residual of ``G = g.reshape(n, 3)`` and its Jacobian.
+    """Scale-free orthonormality residual ``e: (2F,)`` of ``G = g.reshape(n, 3)``.
 
     Per frame, with ``r1 = a G``, ``r2 = b G`` and ``s = |r1|^2 + |r2|^2``:
     ``e1 = (|r1|^2 - |r2|^2) / s`` and ``e2 = 2 r1.r2 / s`` (both in [-1, 1]).
-    Returns ``(e: (2F,), J: (2F, 3n))``.
     """
-    n = a.shape[1]
-    G = g.reshape(n, 3)
-    r1, r2 = a @ G, b @ G
-    n1, n2 = (r1 ** 2).sum(1), (r2 ** 2).sum(1)
-    d = (r1 * r2).sum(1)
-    s = np.maximum(n1 + n2, 1e-300)
-    e = np.concatenate([(n1 - n2) / s, 2.0 * d / s])
+    _, _, n1, n2, d, s = _orthonormality_terms(g, a, b)
+    return np.concatenate([(n1 - n2) / s, 2.0 * d / s])
+
+
+def _orthonormality_jacobian(g, a, b):
+    """Jacobian ``J: (2F, 3n)`` of :func:`_orthonormality_residual` at ``g``."""
+    r1, r2, n1, n2, d, s = _orthonormality_terms(g, a, b)
     c1a = (4.0 * n2 / s ** 2)[:, None] * r1
     c1b = (-4.0 * n1 / s ** 2)[:, None] * r2
     c2a = 2.0 * r2 / s[:, None] - (4.0 * d / s ** 2)[:, None] * r1
     c2b = 2.0 * r1 / s[:, None] - (4.0 * d / s ** 2)[:, None] * r2
-    J1 = np.einsum('fj,fc->fjc', a, c1a) + np.einsum('fj,fc->fjc', b, c1b)
-    J2 = np.einsum('fj,fc->fjc', a, c2a) + np.einsum('fj,fc->fjc', b, c2b)
-    return e, np.concatenate([J1, J2]).reshape(2 * a.shape[0], 3 * n)
+    J = a[None, :, :, None] * np.stack([c1a, c2a])[:, :, None, :] + \
+        b[None, :, :, None] * np.stack([c1b, c2b])[:, :, None, :]       # (2, F, n, 3)
+    return J.reshape(2 * a.shape[0], 3 * a.shape[1])
 
 
 def _refine(G0, Pi):
@@ -189,10 +197,10 @@ def _refine(G0, Pi):
     a, b = Pi[0::2], Pi[1::2]
 
     def fun(g):
-        return _orthonormality_residual(g, a, b)[0]
+        return _orthonormality_residual(g, a, b)
 
     def jac(g):
-        return _orthonormality_residual(g, a, b)[1]
+        return _orthonormality_jacobian(g, a, b)
 
     sol = least_squares(fun, G0.ravel(), jac=jac, method='trf', x_scale='jac',
                         xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=200)
