@@ -9,6 +9,7 @@ from grass_nrsfm_ros.nrsfm.measurement import (economy_svd, GRAM_COLUMNS_PER_ROW
 from grass_nrsfm_ros.nrsfm.metrics import e3d, rotation_error
 from grass_nrsfm_ros.nrsfm.rotation import (choose_rank, estimate_rotations,
                                             rigid_factorisation, rotation_spread,
+                                            rotations_for_rank,
                                             rotations_from_start, sign_continuity)
 
 
@@ -140,12 +141,27 @@ def test_auto_rank_is_near_oracle_on_noisy_synthetic(K_true, seed):
     assert errors[auto.K] <= 1.1 * min(errors.values())
 
 
+def test_rank_search_stops_where_higher_ranks_cannot_change_the_choice():
+    W, _, _ = synthetic(K=2, noise=0.02, seed=41)
+    auto = estimate_rotations(W)
+    searched = [k for k in auto.scores if isinstance(k, int)]
+    full = estimate_rotations(W, K=6)               # every rank 1..6, the same nested starts
+    residuals = {k: v['residual'] for k, v in full.scores.items()
+                 if isinstance(k, int) and 'residual' in v}
+    assert len(searched) < len(residuals), auto.scores['rule']
+    K, rule = choose_rank(residuals, W.shape[0] // 2)
+    assert (auto.K, auto.scores['rule']) == (K, rule)
+    np.testing.assert_array_equal(auto.R, estimate_rotations(W, K=K).R)
+
+
 def test_auto_rank_on_noise_free_data_stops_at_exact_fit():
     W, _, R_true = synthetic(K=2, seed=40)
     est = estimate_rotations(W)
     assert est.K == 2, est.scores['rule']
     assert rotation_error(est.R, R_true) < 0.5
-    assert 'error' in est.scores[3]                 # rank 6 data cannot carry K = 3
+    assert 3 not in est.scores                      # an exact fit ends the search
+    with pytest.raises(ValueError, match='numerical rank'):
+        rotations_for_rank(W, 3)                    # rank 6 data cannot carry K = 3
 
 
 def test_choose_rank_rule():

@@ -286,6 +286,8 @@ class DenseTracker:
 
     def _keep(self, keep):
         """Keep only the tracks ``keep (P,) bool`` (the others die)."""
+        if keep.all():
+            return
         self._ids, self._key, self._born = self._ids[keep], self._key[keep], self._born[keep]
         self._uv_ref, self._ref_patches = self._uv_ref[keep], self._ref_patches[keep]
         self._uv, self._misses = self._uv[keep], self._misses[keep]

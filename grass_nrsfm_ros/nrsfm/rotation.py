@@ -419,6 +419,7 @@ def estimate_rotations(W, K='auto', *, candidates=DEFAULT_CANDIDATES, random_sta
             raise ValueError(f'K must be a positive int or "auto"; got {K!r}')
         ranks = list(range(1, int(K) + 1))
     scores, results, warm = {}, {}, None
+    keep = wanted if K == 'auto' else [int(K)]
     for k in ranks:
         try:
             R, warm, info = rotations_for_rank(W, k, random_state=random_state, warm=warm,
@@ -427,7 +428,9 @@ def estimate_rotations(W, K='auto', *, candidates=DEFAULT_CANDIDATES, random_sta
             scores[k] = {'error': str(exc)}
             continue
         scores[k], results[k] = info, R
-    keep = wanted if K == 'auto' else [int(K)]
+        if K == 'auto' and _rank_decided({j: scores[j]['residual'] for j in results
+                                          if j in keep}, F):
+            break                 # the higher ranks cannot change the choice: not searched
     results = {k: r for k, r in results.items() if k in keep}
     if not results:
         R, _, info = _rigid(W)
@@ -498,15 +501,38 @@ def choose_rank(residuals, n_frames, *, plateau=PLATEAU_RATIO, exact=EXACT_RESID
     under-estimating costs much, so the rule leans high. Returns ``(K, reason)``.
     """
     ks = sorted(residuals)
-    for k, nxt in zip(ks, ks[1:] + [None]):
-        r = residuals[k]
-        if r < exact:
-            return k, f'K={k}: residual {r:.2e} below {exact:g} (exact fit)'
-        if nxt is None:
-            return k, f'K={k}: largest feasible rank, no plateau before it'
-        ratio = residuals[nxt] / r
-        expected = np.prod([noise_ratio(j, n_frames) for j in range(k, nxt)])
-        if ratio > plateau * expected:
-            return k, (f'K={k}: residual plateau, r{nxt}/r{k} = {ratio:.3f} > {plateau} x '
-                       f'{expected:.3f} (noise-only ratio)')
-    raise ValueError('no residuals')
+    if not ks:
+        raise ValueError('no residuals')
+    for k, nxt in zip(ks, ks[1:]):
+        reason = _rank_rule(residuals, k, nxt, n_frames, plateau, exact)
+        if reason:
+            return k, reason
+    k = ks[-1]
+    return k, _rank_rule(residuals, k, None, n_frames, plateau, exact) or \
+        f'K={k}: largest feasible rank, no plateau before it'
+
+
+def _rank_rule(residuals, k, nxt, n_frames, plateau, exact):
+    """:func:`choose_rank`'s reason to stop at rank ``k`` (exact, or a plateau to the next
+    rank ``nxt``, None when it is not known yet), or None."""
+    r = residuals[k]
+    if r < exact:
+        return f'K={k}: residual {r:.2e} below {exact:g} (exact fit)'
+    if nxt is None:
+        return None
+    ratio = residuals[nxt] / r
+    expected = np.prod([noise_ratio(j, n_frames) for j in range(k, nxt)])
+    if ratio > plateau * expected:
+        return (f'K={k}: residual plateau, r{nxt}/r{k} = {ratio:.3f} > {plateau} x '
+                f'{expected:.3f} (noise-only ratio)')
+    return None
+
+
+def _rank_decided(residuals, n_frames):
+    """Whether :func:`choose_rank` on ``residuals`` (the ranks searched so far) already
+    stops below the highest of them, by a rule no higher rank can change (the search is
+    nested: a rank's residual depends on the lower ranks only)."""
+    ks = sorted(residuals)
+    return bool(ks) and (any(_rank_rule(residuals, k, nxt, n_frames, PLATEAU_RATIO,
+                                        EXACT_RESIDUAL) for k, nxt in zip(ks, ks[1:]))
+                         or residuals[ks[-1]] < EXACT_RESIDUAL)
