@@ -405,7 +405,8 @@ def estimate_rotations(W, K='auto', *, candidates=DEFAULT_CANDIDATES, random_sta
     """Camera rotations of ``W: (2F, P)`` (any translation) by Dai et al.'s method.
 
     ``K``: the shape-basis rank, an int, or 'auto' to choose among ``candidates`` with
-    :func:`choose_rank`. Degenerate input falls back to :func:`rigid_factorisation` with the
+    :func:`choose_rank`, searched upward only until that rule stops (``scores`` holds the
+    ranks searched). Degenerate input falls back to :func:`rigid_factorisation` with the
     reason in ``scores['fallback']``. Returns a :class:`RotationEstimate`.
     """
     svd = normalised_svd(W)
