@@ -32,18 +32,23 @@ def run_variant(W, tracks, beta_max):
     return points, refined, cpu[0]
 
 
+def chosen_sequences(only=''):
+    """``[(name, W, S)]``: record 0435's sequences, the other synthetic kinds 60 x 1,000 and
+    a second dense face; ``only``: comma-separated names to keep (empty: all)."""
+    keep = set(filter(None, only.split(',')))
+    more = [(f'{k}60', *common.synthetic(k, 60, 1000))
+            for k in ('waving', 'inflating', 'twisting', 'articulated')]
+    every = sequences() + more + [('face60s1', *common.dense_face(60, 3000, seed=1))]
+    return [s for s in every if not keep or s[0] in keep]
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('--variants', default='1000:10,500:10,1000:1,500:1')
     parser.add_argument('--only', default='')
     args = parser.parse_args(argv)
     variants = [tuple(float(x) for x in v.split(':')) for v in args.variants.split(',')]
-    only = set(filter(None, args.only.split(',')))
-    more = [(f'{k}60', *common.synthetic(k, 60, 1000))
-            for k in ('waving', 'inflating', 'twisting', 'articulated')]
-    for name, W, S in sequences() + more + [('face60s1', *common.dense_face(60, 3000, seed=1))]:
-        if only and name not in only:
-            continue
+    for name, W, S in chosen_sequences(args.only):
         for tracks, beta in variants:
             points, refined, cpu = run_variant(W, int(tracks), beta)
             print(f'{name} first window {int(tracks)} tracks, beta {beta:g}: points '

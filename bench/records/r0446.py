@@ -7,8 +7,8 @@ it closes), e3D of ``points`` and ``points/refined`` and the first window's CPU 
 import argparse
 import sys
 
-from bench import common, live
-from bench.records.r0435 import sequences
+from bench import live
+from bench.records.r0445 import chosen_sequences
 from grass_nrsfm_ros import mapper
 from grass_nrsfm_ros.nrsfm.metrics import e3d
 from grass_nrsfm_ros.nrsfm.schema import solver_defaults
@@ -37,12 +37,7 @@ def main(argv=None):
     parser.add_argument('--rhos', default='1.2,1.5,2.0')
     parser.add_argument('--only', default='')
     args = parser.parse_args(argv)
-    only = set(filter(None, args.only.split(',')))
-    more = [(f'{k}60', *common.synthetic(k, 60, 1000))
-            for k in ('waving', 'inflating', 'twisting', 'articulated')]
-    for name, W, S in sequences() + more + [('face60s1', *common.dense_face(60, 3000, seed=1))]:
-        if only and name not in only:
-            continue
+    for name, W, S in chosen_sequences(args.only):
         for rho in (float(r) for r in args.rhos.split(',')):
             points, refined, cpu = run_variant(W, rho)
             print(f'{name} first window rho {rho:g}: points {e3d(live.stacked(points), S):.4f} '
