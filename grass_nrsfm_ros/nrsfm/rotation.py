@@ -504,13 +504,11 @@ def choose_rank(residuals, n_frames, *, plateau=PLATEAU_RATIO, exact=EXACT_RESID
     ks = sorted(residuals)
     if not ks:
         raise ValueError('no residuals')
-    for k, nxt in zip(ks, ks[1:]):
+    for k, nxt in zip(ks, ks[1:] + [None]):
         reason = _rank_rule(residuals, k, nxt, n_frames, plateau, exact)
         if reason:
             return k, reason
-    k = ks[-1]
-    return k, _rank_rule(residuals, k, None, n_frames, plateau, exact) or \
-        f'K={k}: largest feasible rank, no plateau before it'
+    return ks[-1], f'K={ks[-1]}: largest feasible rank, no plateau before it'
 
 
 def _rank_rule(residuals, k, nxt, n_frames, plateau, exact):
@@ -531,9 +529,8 @@ def _rank_rule(residuals, k, nxt, n_frames, plateau, exact):
 
 def _rank_decided(residuals, n_frames):
     """Whether :func:`choose_rank` on ``residuals`` (the ranks searched so far) already
-    stops below the highest of them, by a rule no higher rank can change (the search is
-    nested: a rank's residual depends on the lower ranks only)."""
+    stops by a rule no higher rank can change (the search is nested: a rank's residual
+    depends on the lower ranks only): an exact fit, or a plateau to a rank searched."""
     ks = sorted(residuals)
-    return bool(ks) and (any(_rank_rule(residuals, k, nxt, n_frames, PLATEAU_RATIO,
-                                        EXACT_RESIDUAL) for k, nxt in zip(ks, ks[1:]))
-                         or residuals[ks[-1]] < EXACT_RESIDUAL)
+    return any(_rank_rule(residuals, k, nxt, n_frames, PLATEAU_RATIO, EXACT_RESIDUAL)
+               for k, nxt in zip(ks, ks[1:] + [None]))
