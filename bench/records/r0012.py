@@ -6,7 +6,6 @@ R, and the CPU seconds of each, on the synthetic kinds and the dense face.
 """
 import argparse
 import sys
-import time
 
 import numpy as np
 
@@ -29,12 +28,6 @@ def full_choice(W, every):
     return K, rule, estimate_rotations(W, K=K).R
 
 
-def timed(function, W):
-    start = time.process_time()
-    out = function(W)
-    return out, time.process_time() - start
-
-
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('--frames', type=int, default=60)
@@ -45,8 +38,8 @@ def main(argv=None):
     sequences.append(('dense face', common.dense_face(args.frames, 1000)[0]))
     with one_blas_thread():
         for name, W in sequences:
-            stopped, stopped_s = timed(estimate_rotations, W)
-            every, full_s = timed(every_rank, W)
+            stopped, _, stopped_s = common.timed(estimate_rotations, W)
+            every, _, full_s = common.timed(every_rank, W)
             K, rule, R = full_choice(W, every)
             searched = sorted(k for k in stopped.scores if isinstance(k, int))
             same = (stopped.K, stopped.scores['rule']) == (K, rule) and \
