@@ -11,13 +11,14 @@ import numpy as np
 
 from bench import common
 from grass_nrsfm_ros.nrsfm.rotation import (choose_rank, DEFAULT_CANDIDATES,
-                                            estimate_rotations)
+                                            estimate_rotations, max_rank)
 from grass_nrsfm_ros.nrsfm.solver import one_blas_thread
 
 
 def every_rank(W):
-    """The search over every candidate rank (what 'auto' searched before)."""
-    return estimate_rotations(W, K=max(DEFAULT_CANDIDATES))
+    """The search over every candidate rank W can carry (what 'auto' searched before)."""
+    F, P = W.shape[0] // 2, W.shape[1]
+    return estimate_rotations(W, K=min(max(DEFAULT_CANDIDATES), max_rank(F, P)))
 
 
 def full_choice(W, every):
