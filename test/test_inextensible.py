@@ -12,8 +12,10 @@ from grass_nrsfm_ros.nrsfm.inextensible import (length_variation, neighbour_edge
                                                 register_rotations)
 from grass_nrsfm_ros.nrsfm.measurement import as_frames, from_frames
 from grass_nrsfm_ros.nrsfm.metrics import e3d, rotation_error
+from grass_nrsfm_ros.nrsfm.problem import SolverReport
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation, rotation_spread
 from grass_nrsfm_ros.nrsfm.schema import REGISTRATION_MIN_SPREAD
+from grass_nrsfm_ros.nrsfm.stages import refinement
 from grass_nrsfm_ros.nrsfm.synthetic import make_sequence
 
 
@@ -234,3 +236,25 @@ def test_no_p_by_p_allocation():
         tracemalloc.stop()
     assert refined.shape == (3 * F, P)
     assert peak < 100e6, peak
+
+
+def test_the_refinement_reuses_its_checks_integration():
+    """The stage's 'auto' check on every track hands its set-up and sweeps to the refinement
+    it decides: the depths are bitwise those of a fresh refine_depth, and the check's own
+    figures those of refine_depth without rotations. On more tracks than the check's sample
+    nothing is handed over."""
+    seq = make_sequence('bending', n_frames=20, n_points=300, seed=1)
+    start = squashed(seq.S, 0.3)
+    params = {'inextensible': 'auto', 'random_state': 0}
+    check = refinement.check(start, seq.W, params)
+    assert check.integration is not None and check.tracks == 300
+    _, fresh = refine_depth(start, neighbour_edges(seq.W))
+    assert check.after == fresh['length_variation_after']
+    assert check.before == fresh['length_variation_before'] and check.used
+    report = SolverReport()
+    refined = refinement.run(start, seq.R, seq.W, params, check, report)
+    assert np.array_equal(refined, refine_depth(start, neighbour_edges(seq.W), R=seq.R)[0])
+    assert report.inextensible
+
+    big = make_sequence('bending', n_frames=6, n_points=refinement.CHECK_POINTS + 1, seed=1)
+    assert refinement.check(big.S, big.W, params).integration is None

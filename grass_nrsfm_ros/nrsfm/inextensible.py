@@ -181,51 +181,84 @@ def register_rotations(S, R, *, rank=SIGN_RANK, iterations=REGISTRATION_ITERATIO
     return R
 
 
-def refine_depth(S, edges, *, R=None, quantile=LENGTH_QUANTILE, sweeps=SIGN_SWEEPS,
-                 sign_rounds=SIGN_ROUNDS, sign_rank=SIGN_RANK, anchor=ANCHOR):
-    """``S: (3F, P)`` camera frame with each frame's depths replaced by the inextensible ones
-    over ``edges = (i, j)`` (see the module docstring); x, y and each frame's mean depth kept.
-    With the rotations ``R: (F, 3, 3)`` the signs are then re-estimated ``sign_rounds`` times
-    from the rank-``sign_rank`` world shapes. Returns ``(S_refined: (3F, P), info)``, info with
-    the length variation before and after."""
-    i, j = (np.asarray(e, dtype=np.intp) for e in edges)
-    X = as_frames(np.asarray(S, dtype=np.float64), 3)
-    F, _, P = X.shape
-    if R is not None:
-        R = validate_rotations(R, F)
-    mean_depth = X[:, 2, :].mean(axis=1, keepdims=True)
-    z0 = X[:, 2, :] - mean_depth                              # (F, P)
-    # inextensible length: the larger of the image-length quantile and the median of the
-    # solver's 3D length (an edge that never faces the camera is longer than all its images)
-    solid, relative_std = _length_stats(X, i, j)
-    length = np.maximum(_image_length_quantile(X, i, j, quantile), solid)
-    E = i.size
-    rows = np.arange(E)
-    incidence = sp.csr_matrix((np.r_[np.ones(E), -np.ones(E)], (np.r_[rows, rows], np.r_[i, j])),
-                              shape=(E, P))
-    solve = splu((incidence.T @ incidence + anchor * sp.eye(P)).tocsc()).solve
+class DepthIntegration:
+    """The inextensible depths of one ``S: (3F, P)`` camera frame over ``edges = (i, j)``
+    (see the module docstring): set up once (each edge's length, the Laplacian's factor) and
+    swept once per number of sweeps, so a check and the refinement it decides can share them.
+    :meth:`refine` gives ``(S_refined: (3F, P), info)``."""
 
-    def integrate(signs_from):
-        """Depths ``(F, P)`` (zero mean per frame) with the edge signs of ``signs_from``."""
-        rhs = anchor * z0.T                                   # (P, F)
-        for frames in _chunks(F, E):
+    def __init__(self, S, edges, *, quantile=LENGTH_QUANTILE, anchor=ANCHOR):
+        self.i, self.j = (np.asarray(e, dtype=np.intp) for e in edges)
+        self.X = as_frames(np.asarray(S, dtype=np.float64), 3)
+        P = self.X.shape[2]
+        self.mean_depth = self.X[:, 2, :].mean(axis=1, keepdims=True)
+        self.z0 = self.X[:, 2, :] - self.mean_depth                  # (F, P)
+        # inextensible length: the larger of the image-length quantile and the median of the
+        # solver's 3D length (an edge that never faces the camera is longer than all its images)
+        solid, self.relative_std = _length_stats(self.X, self.i, self.j)
+        self.length = np.maximum(_image_length_quantile(self.X, self.i, self.j, quantile), solid)
+        E = self.i.size
+        self.anchor = anchor
+        rows = np.arange(E)
+        self.incidence = sp.csr_matrix((np.r_[np.ones(E), -np.ones(E)],
+                                        (np.r_[rows, rows], np.r_[self.i, self.j])),
+                                       shape=(E, P))
+        self._solve = splu((self.incidence.T @ self.incidence
+                            + anchor * sp.eye(P)).tocsc()).solve
+        self._swept = {}
+
+    def integrate(self, signs_from):
+        """Depths ``(F, P)`` (zero mean per frame) with the edge signs of ``signs_from: (F,
+        P)``."""
+        X, i, j, length = self.X, self.i, self.j, self.length
+        rhs = self.anchor * self.z0.T                             # (P, F)
+        for frames in _chunks(X.shape[0], i.size):
             dl = _image_lengths(X, i, j, frames)
             target = np.sqrt(np.maximum(length ** 2 - dl ** 2, 0.0))
             target *= np.where(signs_from[frames][:, i] >= signs_from[frames][:, j], 1.0, -1.0)
-            rhs[:, frames] += incidence.T @ target.T
-        z = solve(rhs).T
+            rhs[:, frames] += self.incidence.T @ target.T
+        z = self._solve(rhs).T
         return z - z.mean(axis=1, keepdims=True)
 
-    z = z0
-    for _ in range(sweeps + 1):
-        z = integrate(z)
-    out = X.copy()
-    for _ in range(sign_rounds if R is not None and E else 0):
-        out[:, 2, :] = z
-        z = integrate(integrate(low_rank_depths(out, R, sign_rank)))
-    out[:, 2, :] = z + mean_depth
-    refined = from_frames(out)
-    info = {'edges': int(E),
-            'length_variation_before': float(relative_std.mean()) if E else 0.0,
-            'length_variation_after': length_variation(refined, i, j)}
-    return refined, info
+    def swept(self, sweeps):
+        """Depths ``(F, P)`` after ``sweeps`` + 1 integrations, each with the signs of the
+        one before (the first with the solver's); computed once per ``sweeps``."""
+        if sweeps not in self._swept:
+            z = self.z0
+            for _ in range(sweeps + 1):
+                z = self.integrate(z)
+            self._swept[sweeps] = z
+        return self._swept[sweeps]
+
+    def refine(self, R=None, *, sweeps=SIGN_SWEEPS, sign_rounds=SIGN_ROUNDS,
+               sign_rank=SIGN_RANK):
+        """``(S_refined: (3F, P), info)``: :func:`refine_depth` of this integration's shapes
+        and edges."""
+        X, i, j = self.X, self.i, self.j
+        if R is not None:
+            R = validate_rotations(R, X.shape[0])
+        z = self.swept(sweeps)
+        out = X.copy()
+        for _ in range(sign_rounds if R is not None and i.size else 0):
+            out[:, 2, :] = z
+            z = self.integrate(self.integrate(low_rank_depths(out, R, sign_rank)))
+        out[:, 2, :] = z + self.mean_depth
+        refined = from_frames(out)
+        info = {'edges': int(i.size),
+                'length_variation_before': float(self.relative_std.mean()) if i.size else 0.0,
+                'length_variation_after': length_variation(refined, i, j)}
+        return refined, info
+
+
+def refine_depth(S, edges, *, R=None, quantile=LENGTH_QUANTILE, sweeps=SIGN_SWEEPS,
+                 sign_rounds=SIGN_ROUNDS, sign_rank=SIGN_RANK, anchor=ANCHOR, integration=None):
+    """``S: (3F, P)`` camera frame with each frame's depths replaced by the inextensible ones
+    over ``edges = (i, j)`` (see the module docstring); x, y and each frame's mean depth kept.
+    With the rotations ``R: (F, 3, 3)`` the signs are then re-estimated ``sign_rounds`` times
+    from the rank-``sign_rank`` world shapes. ``integration``: the :class:`DepthIntegration`
+    of these ``S`` and ``edges`` when one exists (its set-up and sweeps are reused; ``quantile``
+    and ``anchor`` are then its own). Returns ``(S_refined: (3F, P), info)``, info with the
+    length variation before and after."""
+    if integration is None:
+        integration = DepthIntegration(S, edges, quantile=quantile, anchor=anchor)
+    return integration.refine(R, sweeps=sweeps, sign_rounds=sign_rounds, sign_rank=sign_rank)

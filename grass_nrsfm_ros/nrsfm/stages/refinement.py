@@ -6,11 +6,11 @@ lengths, signs re-estimated from the world shapes), kept when that cuts the vari
 Speaks ``S: (3F, P)`` camera frame, ``W: (2F, P)``, ``R: (F, 3, 3)``.
 Report: ``inextensible``, a note with the edge-length variations.
 """
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..inextensible import neighbour_edges, refine_depth
+from ..inextensible import DepthIntegration, neighbour_edges, refine_depth
 from ..schema import INEXTENSIBLE_MIN_POINTS, INEXTENSIBLE_RATIO
 
 NAME = 'refinement'
@@ -22,12 +22,14 @@ CHECK_POINTS = 2000
 class Check:
     """The edge-length variation of the solver's shapes (``before``) and of their inextensible
     depths (``after``) on ``tracks`` tracks, their ``ratio``, and whether the depths are
-    ``used``."""
+    ``used``; ``integration``: the check's :class:`DepthIntegration` when it was made on every
+    track (the refinement then reuses it), else None."""
     before: float
     after: float
     ratio: float
     tracks: int
     used: bool
+    integration: DepthIntegration = field(default=None, repr=False, compare=False)
 
 
 def applies(problem, params):
@@ -54,16 +56,19 @@ def check(S, W, params):
     if params['inextensible'] == 'always':
         return None
     idx = check_tracks(W.shape[1], params['random_state'])
+    if idx.size == W.shape[1]:
+        integration = DepthIntegration(S, neighbour_edges(W))
+        return _check_of(integration.refine()[1], idx.size, integration)
     _, info = refine_depth(S[:, idx], neighbour_edges(W[:, idx]))
     return _check_of(info, idx.size)
 
 
-def _check_of(info, tracks):
+def _check_of(info, tracks, integration=None):
     """The :class:`Check` of a :func:`refine_depth` ``info``, used when its ratio is below
     INEXTENSIBLE_RATIO."""
     before, after = info['length_variation_before'], info['length_variation_after']
     ratio = after / before if before > 0 else 1.0
-    return Check(before, after, ratio, tracks, ratio < INEXTENSIBLE_RATIO)
+    return Check(before, after, ratio, tracks, ratio < INEXTENSIBLE_RATIO, integration)
 
 
 def run(S, R, W, params, result, report):
@@ -81,4 +86,9 @@ def run(S, R, W, params, result, report):
         f'{c.ratio:.2f}, threshold {INEXTENSIBLE_RATIO:g})')
     if not c.used:
         return S
-    return refine_depth(S, neighbour_edges(W), R=R)[0] if refined is None else refined
+    if refined is not None:
+        return refined
+    if c.integration is not None:
+        return refine_depth(S, (c.integration.i, c.integration.j), R=R,
+                            integration=c.integration)[0]
+    return refine_depth(S, neighbour_edges(W), R=R)[0]
