@@ -16,7 +16,8 @@
 * ``drift``: 5 % of the tracks drifting up to 20 px (:func:`synthetic.drifting_tracks`, 1 px =
   the sequence's max |centred W| / 200), against the clean tracks (bar <= 1.2), with
   ``robust`` 'never' (the default) and 'cauchy' (its weighed-down tracks' 3D from their kept
-  neighbours since record 0811); the drifting tracks found, clean ones touched; the default and
+  neighbours since record 0811, found also by their neighbours' residual since record 0812);
+  the drifting tracks found, clean ones touched; the default and
   the clean tracks also with the true rotations (record 0809).
 
 Synthetic: 60 frames x 400 tracks, orbiting camera, noise r = 0.005 (1 px), seeds 3 (and 4, 5

@@ -8,6 +8,8 @@ from grass_nrsfm_ros.nrsfm.admm import closed_form_shapes, weight_patterns
 from grass_nrsfm_ros.nrsfm.missing import (_impute, check_mask, complete, fill_unseen,
                                            observation_mask)
 from grass_nrsfm_ros.nrsfm.priors import TemporalSmoothness
+from grass_nrsfm_ros.nrsfm.problem import Problem
+from grass_nrsfm_ros.nrsfm.stages import robust
 from grass_nrsfm_ros.nrsfm.synthetic import drifting_tracks, make_sequence, occlusion_mask
 
 
@@ -187,21 +189,41 @@ def test_complete_tracks_are_not_pulled_by_incomplete_ones_beside_them():
 
 def test_robust_weights_down_drifting_tracks_and_leaves_clean_ones():
     """5 % of the tracks drifting up to 20 px: 'cauchy' weighs them down and reports them
-    (measured on this sequence: 20 of 20 found, 1 clean track weighed down too); on the clean
-    tracks few are touched, and 'never' (the default) touches none."""
+    (measured on this sequence: 20 of 20 found, 4 clean tracks weighed down too, 1 before the
+    neighbours' residual of record 0812); on the clean tracks few are touched, and 'never' (the
+    default) touches none."""
     seq = make_sequence('bending', n_frames=40, n_points=300, noise=0.005, seed=3)
     drifted, drifting = drifting_tracks(seq.W, 0.05, 20.0, np.random.default_rng(7))
     result = GrassmannNRSfM(robust='cauchy').fit(drifted)
     down = np.zeros(300, bool)
     down[result.report.downweighted_tracks] = True
     assert (down & drifting).sum() >= 0.8 * drifting.sum()
-    assert (down & ~drifting).sum() <= 3
+    assert (down & ~drifting).sum() <= 6
     assert np.array_equal(result.track_weights < 1, down) and 'robust' in result.report.stages
     assert np.isfinite(result.S).all()
     clean = GrassmannNRSfM(robust='cauchy').fit(seq.W)
-    assert len(clean.report.downweighted_tracks) <= 3
+    assert len(clean.report.downweighted_tracks) <= 6
     plain = GrassmannNRSfM().fit(drifted)
     assert plain.track_weights is None and plain.report.downweighted_tracks == []
+
+
+def test_drift_the_low_rank_residual_misses_leaves_the_neighbours():
+    """An articulated body (two rigid halves: the others span more than the rank-6 residual's
+    approximation), 5 % of the tracks drifting up to 20 px: the rank-6 residual alone finds 2
+    of the 20 (record 0801), the neighbours' residual all of them; the robust solve then lands
+    within 1.15 of the clean tracks' (measured 1.064; 1.220 with the rank-6 residual alone)."""
+    seq = make_sequence('articulated', n_frames=60, n_points=400, noise=0.005, seed=3)
+    drifted, drifting = drifting_tracks(seq.W, 0.05, 20.0, np.random.default_rng(203))
+    problem = Problem.from_tracks(drifted)
+    weights = robust.track_weights(problem)
+    seen = np.ones_like(problem.Wn)
+    low_rank = np.ones(problem.P)
+    for _ in range(robust.ROUNDS):
+        low_rank = robust.cauchy_weights(robust.residuals(problem.Wn, low_rank, seen))
+    assert (low_rank[drifting] < 1).sum() <= 5
+    assert (weights[drifting] < 1).all() and (weights[~drifting] < 1).sum() <= 5
+    clean = e3d(GrassmannNRSfM().fit(seq.W).S, seq.S)
+    assert e3d(GrassmannNRSfM(robust='cauchy').fit(drifted).S, seq.S) <= 1.15 * clean
 
 
 def test_complete_tracks_take_the_unmasked_path():

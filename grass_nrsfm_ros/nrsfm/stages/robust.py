@@ -1,12 +1,16 @@
 """Stage 'robust' (robust='cauchy'): tracks a tracker lost hold of (drift, jumps) weighed down
 in the data term, before the rotations, so that they do not pull the shapes.
 
-Each track's RMS residual (over its seen entries) against a rank-DETECT_RANK approximation of
-the centred tracks ``Wn: (2F, P)``, fitted with the track weights of the round before (IRLS,
-ROUNDS rounds): a drifting track leaves the low-rank span of the others, which the solver's
-own fit (its shapes may deform per track) would absorb. Weights ``(P,)``: 1 up to
-``median + THRESHOLD`` robust deviations (1.4826 MAD), ``(threshold / r)^2`` above (Cauchy's
-tail). They multiply the data-term weights of the whole solve (:meth:`Problem.weighted`).
+Two residuals per track, each over its seen entries, each with IRLS over ROUNDS rounds
+(record 0812): against a rank-DETECT_RANK approximation of the centred tracks ``Wn: (2F,
+P)`` fitted with the track weights of the round before (a drifting track leaves the low-rank
+span of the others, which the solver's own fit, its shapes deforming per track, would absorb),
+and against the affine combination of its nearest tracks not weighed down in the round before
+(a drifting track leaves its neighbours, also where the others span more than DETECT_RANK:
+two rigid parts). Weights ``(P,)``: 1 up to ``median + THRESHOLD`` (LOCAL_THRESHOLD for the
+neighbours) robust deviations (1.4826 MAD), ``(threshold / r)^2`` above (Cauchy's tail); the
+smaller of the two. They multiply the data-term weights of the whole solve
+(:meth:`Problem.weighted`).
 The rotations are then estimated on the tracks no weight touched (:func:`kept_tracks`, read by
 :func:`.rotations.core_tracks`, record 0805): Dai's factorisation reads every track it is given,
 and a drifting one moves its rank-3K span.
@@ -16,8 +20,10 @@ follows its data (record 0805), drifted entries included.
 Report: ``downweighted_tracks`` (indices), notes; the result's ``track_weights``.
 """
 import numpy as np
+from scipy.spatial import cKDTree
 
-from ..density import affine_weights, FILL_NEIGHBOURS
+from ..density import affine_weights, CHUNK, FILL_NEIGHBOURS, nearest
+from ..inextensible import trajectory_embedding
 from ..measurement import centre, economy_svd
 
 NAME = 'robust'
@@ -27,6 +33,9 @@ DETECT_RANK = 6
 ROUNDS = 3
 #: robust deviations above the median residual from which a track is weighed down
 THRESHOLD = 3.0
+#: robust deviations above the median residual to the neighbours from which a track is weighed
+#: down (record 0812)
+LOCAL_THRESHOLD = 8.0
 #: the rotations read the kept tracks only while they are at least this share of all
 KEPT_SHARE = 0.5
 #: a weighed-down track's frame is trusted while its residual to its neighbours' combination is
@@ -57,22 +66,57 @@ def residuals(Wn, weights, seen):
     return np.sqrt((seen * resid ** 2).sum(axis=0) / np.maximum(seen.sum(axis=0), 1))
 
 
-def cauchy_weights(r):
-    """Weights ``(P,)`` of the residuals ``r: (P,)``: 1 up to the threshold, then
-    ``(threshold / r)^2``."""
-    median = np.median(r)
-    deviation = 1.4826 * np.median(np.abs(r - median))
-    threshold = median + THRESHOLD * max(deviation, 1e-12 * max(median, 1e-300))
-    return np.where(r > threshold, (threshold / np.maximum(r, 1e-300)) ** 2, 1.0)
+def local_residuals(Wn, candidates, seen, embedding):
+    """Per-track RMS residual ``(P,)`` of ``Wn: (2F, P)`` over its ``seen: (2F, P)`` entries
+    against the affine combination (:func:`.density.affine_weights`) of its FILL_NEIGHBOURS
+    nearest ``candidates: (P,) bool`` in ``embedding: (P, n)``, itself excluded, that
+    reproduces it best; zeros where fewer than 3 candidates are left."""
+    P = Wn.shape[1]
+    pool = np.flatnonzero(candidates)
+    k = min(FILL_NEIGHBOURS, pool.size - 1)
+    if k < 2:
+        return np.zeros(P)
+    nbrs = pool[nearest(cKDTree(embedding[pool]), embedding, k + 1)[1]]          # (P, k + 1)
+    own = nbrs == np.arange(P)[:, None]
+    nbrs = np.take_along_axis(nbrs, np.argsort(own, axis=1, kind='stable'), axis=1)[:, :k]
+    X, seen_rows = Wn.T, seen.T
+    out = np.empty(P)
+    step = max(1, CHUNK // (Wn.shape[0] * k))
+    for a in range(0, P, step):
+        part = slice(a, a + step)
+        diff = X[nbrs[part]] - X[part, None, :]                               # (p, k, 2F)
+        resid = np.einsum('pk,pkn->pn', affine_weights(diff), diff)          # combination - x
+        out[part] = np.sqrt((seen_rows[part] * resid ** 2).sum(axis=1)
+                            / np.maximum(seen_rows[part].sum(axis=1), 1))
+    return out
+
+
+def cauchy_weights(r, threshold=THRESHOLD, reference=None):
+    """Weights ``(P,)`` of the residuals ``r: (P,)``: 1 up to ``threshold`` robust deviations
+    above the median (both of ``r[reference]``, ``reference: (P,) bool``; None: all), then
+    ``(limit / r)^2``."""
+    base = r if reference is None else r[reference]
+    median = np.median(base)
+    deviation = 1.4826 * np.median(np.abs(base - median))
+    limit = median + threshold * max(deviation, 1e-12 * max(median, 1e-300))
+    return np.where(r > limit, (limit / np.maximum(r, 1e-300)) ** 2, 1.0)
 
 
 def track_weights(problem):
-    """``(P,)`` weights of the tracks of ``problem`` (IRLS on :func:`residuals`)."""
+    """``(P,)`` weights of the tracks of ``problem``: the smaller of IRLS on
+    :func:`residuals` and IRLS on :func:`local_residuals` (the candidate neighbours and the
+    median's reference: the tracks the round before left at 1)."""
     seen = np.ones_like(problem.Wn) if problem.weights is None else problem.weights > 0
     weights = np.ones(problem.P)
     for _ in range(ROUNDS):
         weights = cauchy_weights(residuals(problem.Wn, weights, seen))
-    return weights
+    embedding = trajectory_embedding(problem.Wn)
+    local = np.ones(problem.P)
+    for _ in range(ROUNDS):
+        kept = local >= 1.0
+        local = cauchy_weights(local_residuals(problem.Wn, kept, seen, embedding),
+                               LOCAL_THRESHOLD, kept)
+    return np.minimum(weights, local)
 
 
 def kept_tracks(problem):

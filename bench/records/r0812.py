@@ -1,0 +1,70 @@
+"""Record 0812: drifting tracks found by their neighbours' residual as well as by the rank-6
+residual (``robust='cauchy'``): e3D over the clean tracks' default solve, drifting tracks
+found / clean tracks weighed down, with the rank-6 residual alone (record 0801) and with both.
+
+    python -m bench.records.r0812 [--seeds 3,4,5,6,7] [--kinds bending,...] [--clean]
+
+``bench.missing``'s drift rows (60 x 400, 1 px noise, 5 % of the tracks drifting up to
+20 px, the drift's generator seeded seed + 200); ``--clean``: the clean tracks instead (what
+'cauchy' does where nothing drifts).
+"""
+import argparse
+import sys
+
+import numpy as np
+
+from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM, synthetic
+from grass_nrsfm_ros.nrsfm.stages import robust
+
+KINDS = 'bending,waving,inflating,twisting,articulated'
+
+
+def low_rank_weights(problem):
+    """The track weights of record 0801: IRLS on the rank-6 residual alone."""
+    seen = np.ones_like(problem.Wn) if problem.weights is None else problem.weights > 0
+    weights = np.ones(problem.P)
+    for _ in range(robust.ROUNDS):
+        weights = robust.cauchy_weights(robust.residuals(problem.Wn, weights, seen))
+    return weights
+
+
+def cauchy_figures(W, S, drifting, clean, weights_of):
+    """``(e3D / clean, found, clean tracks touched)`` of a 'cauchy' solve of ``W`` whose stage
+    weighs the tracks with ``weights_of``."""
+    shipped = robust.track_weights
+    robust.track_weights = weights_of
+    try:
+        result = GrassmannNRSfM(robust='cauchy').fit(W)
+    finally:
+        robust.track_weights = shipped
+    down = np.zeros(W.shape[1], dtype=bool)
+    down[result.report.downweighted_tracks] = True
+    return e3d(result.S, S) / clean, int((down & drifting).sum()), int((down & ~drifting).sum())
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    parser.add_argument('--seeds', default='3,4,5,6,7')
+    parser.add_argument('--kinds', default=KINDS)
+    parser.add_argument('--clean', action='store_true')
+    args = parser.parse_args(argv)
+    print('| kind | seed | rank 6 alone: ratio (found / clean touched) | both |')
+    print('| --- | --- | --- | --- |')
+    for kind in args.kinds.split(','):
+        for seed in (int(s) for s in args.seeds.split(',')):
+            seq = synthetic.make_sequence(kind, n_frames=60, n_points=400, noise=0.005,
+                                          seed=seed)
+            W, drifting = synthetic.drifting_tracks(seq.W, 0.05, 20.0,
+                                                    np.random.default_rng(seed + 200))
+            if args.clean:
+                W, drifting = seq.W, np.zeros(seq.W.shape[1], dtype=bool)
+            clean = e3d(GrassmannNRSfM().fit(seq.W).S, seq.S)
+            cells = [cauchy_figures(W, seq.S, drifting, clean, fn)
+                     for fn in (low_rank_weights, robust.track_weights)]
+            print(f'| {kind} | {seed} | ' + ' | '.join(f'{r:.3f} ({f} / {c})' for r, f, c in cells)
+                  + ' |', flush=True)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
