@@ -436,7 +436,7 @@ SECTIONS = (('accuracy', 'Accuracy', 'e3D; "A": Akhter\'s metric, the one of the
             ('perspective', 'Perspective', 'The projective-depth iteration; e3D with a '
              'per-frame scale (`python -m bench.perspective`)', perspective_table),
             ('missing', 'Missing data and tracker errors', 'Unseen entries and drifting '
-             'tracks in the offline solver; record 0800, 0801, 0807, 0809, 0811 '
+             'tracks in the offline solver; record 0800, 0801, 0807, 0809, 0811, 0812 '
              '(`python -m bench.missing`)',
              missing_table),
             ('sheets', 'Sheets', 'e3D and its ratio to rigid factorisation per option '
