@@ -226,6 +226,19 @@ def test_drift_the_low_rank_residual_misses_leaves_the_neighbours():
     assert e3d(GrassmannNRSfM(robust='cauchy').fit(drifted).S, seq.S) <= 1.15 * clean
 
 
+def test_noise_free_tracks_are_not_weighed_down_for_their_rounding():
+    """A rigid body seen without noise: every residual is rounding or the neighbours'
+    regularisation (1e-15 to 1e-3 of the unit-RMS tracks), and no drift. Below
+    RESIDUAL_FLOOR no track is weighed down: 1 of 200 is (22 without the floor)."""
+    from scipy.spatial.transform import Rotation
+    X = np.random.default_rng(0).standard_normal((3, 200))
+    R = Rotation.random(30, random_state=1).as_matrix()
+    problem = Problem.from_tracks(np.concatenate([R[f, :2] @ X for f in range(30)]))
+    assert (robust.track_weights(problem) < 1).sum() <= 2
+    rounding = 1e-15 * np.random.default_rng(1).random(50)
+    assert (robust.cauchy_weights(rounding) == 1).all()
+
+
 def test_complete_tracks_take_the_unmasked_path():
     """Every entry seen (visible all True, or no NaN): no weights, no completion, the same
     arrays as a plain fit (the complete path is the one before masks, record 0800)."""

@@ -36,6 +36,10 @@ THRESHOLD = 3.0
 #: robust deviations above the median residual to the neighbours from which a track is weighed
 #: down (record 0812)
 LOCAL_THRESHOLD = 8.0
+#: no track is weighed down below this residual (units of the centred, unit-RMS tracks ``Wn``:
+#: about 0.1 px where the surface spans 200 px): rounding on noise-free input, not drift
+#: (record 0812)
+RESIDUAL_FLOOR = 1e-3
 #: the rotations read the kept tracks only while they are at least this share of all
 KEPT_SHARE = 0.5
 #: a weighed-down track's frame is trusted while its residual to its neighbours' combination is
@@ -93,13 +97,13 @@ def local_residuals(Wn, candidates, seen, embedding):
 
 def cauchy_weights(r, threshold=THRESHOLD, reference=None):
     """Weights ``(P,)`` of the residuals ``r: (P,)``: 1 up to ``threshold`` robust deviations
-    above the median (both of ``r[reference]``, ``reference: (P,) bool``; None: all), then
-    ``(limit / r)^2``."""
+    above the median (both of ``r[reference]``, ``reference: (P,) bool``; None: all), and up
+    to RESIDUAL_FLOOR at least, then ``(limit / r)^2``."""
     base = r if reference is None else r[reference]
     median = np.median(base)
     deviation = 1.4826 * np.median(np.abs(base - median))
-    limit = median + threshold * max(deviation, 1e-12 * max(median, 1e-300))
-    return np.where(r > limit, (limit / np.maximum(r, 1e-300)) ** 2, 1.0)
+    limit = max(median + threshold * deviation, RESIDUAL_FLOOR)
+    return np.where(r > limit, (limit / r) ** 2, 1.0)
 
 
 def track_weights(problem):
