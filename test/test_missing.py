@@ -227,8 +227,8 @@ def test_drift_the_low_rank_residual_misses_leaves_the_neighbours():
 
 
 def test_noise_free_tracks_are_not_weighed_down_for_their_rounding():
-    """A rigid body seen without noise: every residual is rounding or the neighbours'
-    regularisation (1e-15 to 1e-3 of the unit-RMS tracks), and no drift. Below
+    """A rigid body seen without noise: the residuals are rounding (rank 6) or the neighbours'
+    weights' regularisation (median 1.4e-5 of the unit-RMS tracks), no drift. Below
     RESIDUAL_FLOOR no track is weighed down: 1 of 200 is (22 without the floor)."""
     from scipy.spatial.transform import Rotation
     X = np.random.default_rng(0).standard_normal((3, 200))
