@@ -38,8 +38,7 @@ THRESHOLD = 3.0
 LOCAL_THRESHOLD = 8.0
 #: no track is weighed down below this residual (units of the centred, unit-RMS tracks ``Wn``:
 #: about 0.1 px where the surface spans 200 px): noise-free input's rounding and the neighbours'
-#: regularisation, not drift
-#: (record 0812)
+#: regularisation, not drift (record 0812)
 RESIDUAL_FLOOR = 1e-3
 #: the rotations read the kept tracks only while they are at least this share of all
 KEPT_SHARE = 0.5
