@@ -196,11 +196,12 @@ SOLVER_PARAMS = (
           'depths with their signs carried from frame to frame (seconds; 0714). Complete '
           'tracks only.'),
     _mode('robust', 'never', ('never', 'cauchy'),
-          "'cauchy': tracks whose residual against a low-rank approximation of all tracks is "
-          "far above the others (a tracker's drift or jumps) weighed down in the data term "
-          "(Cauchy's tail beyond 3 robust deviations) and left out of the rotations, "
-          "reported as downweighted_tracks; 'never': plain least squares "
-          '(docs/decisions/0801, 0805).'),
+          "'cauchy': tracks whose residual against a low-rank approximation of all tracks, "
+          "or against the combination of their nearest tracks, is far above the others' (a "
+          "tracker's drift or jumps) weighed down in the data term (Cauchy's tail beyond 3 "
+          'and 8 robust deviations), left out of the rotations and their 3D taken from their '
+          "neighbours, reported as downweighted_tracks; 'never': plain least squares "
+          '(docs/decisions/0801, 0805, 0811, 0812).'),
     _number('rho', 1.2, 'Growth factor of the penalty beta per iteration: closer to 1 for a '
             'slower, more gradual schedule (more iterations).', 1.0, open_low=True),
     _number('beta0', 1e-3, 'Initial penalty beta (also of a resumed solve): lower lets the '
