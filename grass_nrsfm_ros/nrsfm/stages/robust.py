@@ -103,7 +103,7 @@ def cauchy_weights(r, threshold=THRESHOLD, reference=None):
     median = np.median(base)
     deviation = 1.4826 * np.median(np.abs(base - median))
     limit = max(median + threshold * deviation, RESIDUAL_FLOOR)
-    return np.where(r > limit, (limit / r) ** 2, 1.0)
+    return np.where(r > limit, (limit / np.maximum(r, limit)) ** 2, 1.0)
 
 
 def track_weights(problem):
