@@ -16,16 +16,21 @@ from grass_nrsfm_ros.nrsfm.solver import one_blas_thread
 from grass_nrsfm_ros.windowing import Windowing
 
 
-def first_window(W, cap):
-    """``(CPU s, e3D-ready S)`` of the first window of ``W: (2F, P)`` solved on ``cap``."""
-    config = {**params.defaults(), 'mapping_tracks': cap}
+def windows_of(W):
+    """The windows the default windowing closes on ``W: (2F, P)``, every frame complete."""
+    config = params.defaults()
     windowing = Windowing(**{k: config[k] for k in params.WINDOW_KEYS})
     ids = np.arange(W.shape[1], dtype=np.uint32)
-    windows = [w for f in range(W.shape[0] // 2)
-               for w in windowing.push(windowing.accept(f, ids, W[2 * f:2 * f + 2].T))]
-    solver = mapper.make_mapper(config)
+    return [w for f in range(W.shape[0] // 2)
+            for w in windowing.push(windowing.accept(f, ids, W[2 * f:2 * f + 2].T))]
+
+
+def first_window(W, cap):
+    """``(CPU s, e3D-ready S)`` of the first window of ``W: (2F, P)`` solved on ``cap``."""
+    first = windows_of(W)[0]
+    solver = mapper.make_mapper({**params.defaults(), 'mapping_tracks': cap})
     start = time.process_time()
-    solver.solve(windows[0])
+    solver.solve(first)
     return time.process_time() - start, solver.previous.S
 
 

@@ -16,19 +16,10 @@ import numpy as np
 
 from bench import common
 from bench.live import slow_face
+from bench.records.r0433 import windows_of
 from grass_nrsfm_ros import mapper, params
 from grass_nrsfm_ros.nrsfm.solver import one_blas_thread
 from grass_nrsfm_ros.nrsfm.stages import refinement
-from grass_nrsfm_ros.windowing import Windowing
-
-
-def windows_of(W):
-    """The windows the default windowing closes on ``W: (2F, P)``, every frame complete."""
-    config = params.defaults()
-    windowing = Windowing(**{k: config[k] for k in params.WINDOW_KEYS})
-    ids = np.arange(W.shape[1], dtype=np.uint32)
-    return [w for f in range(W.shape[0] // 2)
-            for w in windowing.push(windowing.accept(f, ids, W[2 * f:2 * f + 2].T))]
 
 
 def chain(windows, chosen):

@@ -19,15 +19,6 @@ from grass_nrsfm_ros.nrsfm.stages import robust
 KINDS = 'bending,waving,inflating,twisting,articulated'
 
 
-def low_rank_weights(problem):
-    """The track weights of record 0801: IRLS on the rank-6 residual alone."""
-    seen = np.ones_like(problem.Wn) if problem.weights is None else problem.weights > 0
-    weights = np.ones(problem.P)
-    for _ in range(robust.ROUNDS):
-        weights = robust.cauchy_weights(robust.residuals(problem.Wn, weights, seen))
-    return weights
-
-
 def cauchy_figures(W, S, drifting, clean, weights_of):
     """``(e3D / clean, found, clean tracks touched)`` of a 'cauchy' solve of ``W`` whose stage
     weighs the tracks with ``weights_of``."""
@@ -60,7 +51,7 @@ def main(argv=None):
                 W, drifting = seq.W, np.zeros(seq.W.shape[1], dtype=bool)
             clean = e3d(GrassmannNRSfM().fit(seq.W).S, seq.S)
             cells = [cauchy_figures(W, seq.S, drifting, clean, fn)
-                     for fn in (low_rank_weights, robust.track_weights)]
+                     for fn in (robust.low_rank_weights, robust.track_weights)]
             print(f'| {kind} | {seed} | ' + ' | '.join(f'{r:.3f} ({f} / {c})' for r, f, c in cells)
                   + ' |', flush=True)
     return 0

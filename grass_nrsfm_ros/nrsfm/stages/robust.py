@@ -107,20 +107,37 @@ def cauchy_weights(r, threshold=THRESHOLD, reference=None):
 
 
 def track_weights(problem):
-    """``(P,)`` weights of the tracks of ``problem``: the smaller of IRLS on
-    :func:`residuals` and IRLS on :func:`local_residuals` (the candidate neighbours and the
-    median's reference: the tracks the round before left at 1)."""
-    seen = np.ones_like(problem.Wn) if problem.weights is None else problem.weights > 0
+    """``(P,)`` weights of the tracks of ``problem``: the smaller of :func:`low_rank_weights`
+    and :func:`neighbour_weights`."""
+    return np.minimum(low_rank_weights(problem), neighbour_weights(problem))
+
+
+def low_rank_weights(problem):
+    """``(P,)`` weights of the tracks of ``problem`` by IRLS on :func:`residuals`."""
+    seen = _seen(problem)
     weights = np.ones(problem.P)
     for _ in range(ROUNDS):
         weights = cauchy_weights(residuals(problem.Wn, weights, seen))
-    embedding = trajectory_embedding(problem.Wn)
-    local = np.ones(problem.P)
+    return weights
+
+
+def neighbour_weights(problem):
+    """``(P,)`` weights of the tracks of ``problem`` by IRLS on :func:`local_residuals` (the
+    candidate neighbours and the median's reference: the tracks the round before left at
+    1)."""
+    seen, embedding = _seen(problem), trajectory_embedding(problem.Wn)
+    weights = np.ones(problem.P)
     for _ in range(ROUNDS):
-        kept = local >= 1.0
-        local = cauchy_weights(local_residuals(problem.Wn, kept, seen, embedding),
-                               LOCAL_THRESHOLD, kept)
-    return np.minimum(weights, local)
+        kept = weights >= 1.0
+        weights = cauchy_weights(local_residuals(problem.Wn, kept, seen, embedding),
+                                 LOCAL_THRESHOLD, kept)
+    return weights
+
+
+def _seen(problem):
+    """``(2F, P)`` bool: the entries of ``problem`` its data term sees."""
+    return np.ones_like(problem.Wn, dtype=bool) if problem.weights is None \
+        else problem.weights > 0
 
 
 def kept_tracks(problem):
