@@ -137,6 +137,8 @@ def normalise(grey, sigma=_NORM_SIGMA):
     size = (2 * int(round(sigma)) + 1,) * 2       # a box twice: a tent, about a Gaussian
     blur = partial(cv2.boxFilter, ddepth=-1, ksize=size, borderType=cv2.BORDER_REPLICATE)
     detail = cv2.subtract(image, blur(blur(image)))
-    spread = np.maximum(blur(blur(cv2.multiply(detail, detail))), 0.0)   # (rounding: >= 0)
-    gain = cv2.divide(40.0, cv2.sqrt(spread) + 1.0)
+    spread = blur(blur(cv2.multiply(detail, detail)))
+    cv2.max(spread, 0.0, dst=spread)                                      # (rounding: >= 0)
+    cv2.add(cv2.sqrt(spread, dst=spread), 1.0, dst=spread)
+    gain = cv2.divide(40.0, spread)
     return cv2.add(cv2.multiply(detail, gain), 127.5, dtype=cv2.CV_8U)   # rounded, clipped

@@ -87,8 +87,9 @@ class KeyframeRefiner:
         x0, y0, x1, y1 = grid.box(guess, grey.shape, _WARP_MARGIN + self.lk_window)
         raw = grey[y0:y1, x0:x1]
         current = grid.Crop(imaging.normalise(raw), np.float32([x0, y0]), raw)
-        for key in np.unique(anchors.key):
-            rows = np.flatnonzero(anchors.key == key)
+        keys = np.unique(anchors.key)
+        for key in keys:            # (one keyframe, the usual case: views, no copies)
+            rows = slice(None) if keys.size == 1 else np.flatnonzero(anchors.key == key)
             uv[rows], zncc[rows], ok[rows] = self._refine_keyframe(
                 anchors.keyframes[key], current, anchors.uv_ref[rows], anchors.patches[rows],
                 guess[rows], both_ways=bool((anchors.misses[rows] == 0).any()))
