@@ -34,7 +34,7 @@ from grass_nrsfm_ros.nrsfm.tracking import build_model, Tracker
 def own_groups(start_for):
     """``Mapper._start_for`` that carries no spatial groups from a rigid-started solve."""
     def wrapped(self, problem):
-        rigid_before = self.previous is not None and self.previous.K_rot is None
+        rigid_before = self.started_from == 'rigid'          # the previous solve's start
         init = start_for(self, problem)
         if self.started_from == 'model' and rigid_before:
             init = replace(init, groups=None)
