@@ -180,9 +180,20 @@ def environment():
         commit = ''
     return {'date': datetime.datetime.now().isoformat(timespec='seconds'),
             'git': commit, 'python': platform.python_version(), 'numpy': np.__version__,
-            'machine': platform.machine(), 'cpus': os.cpu_count(),
+            'machine': platform.machine(), 'cpus': os.cpu_count(), 'cpu_model': cpu_model(),
             'blas_threads': os.environ.get('OPENBLAS_NUM_THREADS'),
             'blas_kernel': blas_kernel(), 'argv': sys.argv}
+
+
+def cpu_model():
+    """The CPU's model name as the kernel reports it (timings differ between machines), or
+    None where /proc/cpuinfo does not say."""
+    try:
+        lines = Path('/proc/cpuinfo').read_text().splitlines()
+    except OSError:
+        return None
+    names = [line.split(':', 1)[1].strip() for line in lines if line.startswith('model name')]
+    return names[0] if names else None
 
 
 def blas_kernel():

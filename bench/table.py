@@ -481,9 +481,16 @@ def markdown(results, page_dir='.'):
              and 'environment' in v), {})
         out += [f'## {name}', '', (f'{detail}. ' if detail else '')
                 + f'From the {doc.get("mode", "one")} run of {env.get("date", "?")}, commit '
-                f'{env.get("git", "?")}, {env.get("cpus", "?")} CPUs.', '']
+                f'{env.get("git", "?")}, {env.get("cpus", "?")} CPUs{machine_note(env)}.', '']
         out += make(doc) + [''] + plot_links(doc, results, page_dir)
     return '\n'.join(out).rstrip('\n') + '\n'
+
+
+def machine_note(env):
+    """`` (CPU model, BLAS kernel ...)`` of the machine a run was taken on, where recorded."""
+    kernel = env.get('blas_kernel')
+    parts = [p for p in (env.get('cpu_model'), kernel and f'BLAS kernel {kernel}') if p]
+    return f" ({', '.join(parts)})" if parts else ''
 
 
 def page(results, page_dir='.'):
