@@ -16,9 +16,9 @@ subset of the model's tracks) by alternating
   the data less the projected mean), optionally pulled towards the previous frame's
   coefficients by ``temporal_prior``. The prior lets many modes be kept (``MODE_ENERGY``
   0.9999): weak modes are shrunk instead of fitted freely or dropped. The whitened
-  coefficients ``c_k / sqrt(var_k)`` stay within ``MODE_BOUND`` per mode (the prior's weight
-  raised where the MAP estimate leaves that ball), so a model that has grown stale is not
-  extrapolated far past the shapes it was built from.
+  coefficients ``c_k / sqrt(var_k)`` stay within ``MODE_BOUND`` each (3 sigma: the MAP
+  estimate constrained to that box where it leaves it), so a model that has grown stale
+  is not extrapolated far past the shapes it was built from.
 
 The frame's camera-frame shape is ``x, y`` = its centred data, ``z`` = the depth of
 ``R X`` (centred), as the windows publish. Tracks the model lacks take the depth of their
@@ -32,7 +32,8 @@ Cost per frame: O(P r) numpy, no per-point Python.
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import brentq
+from scipy.linalg import solve_triangular
+from scipy.optimize import lsq_linear
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
@@ -49,8 +50,8 @@ FIT_TRACKS = 4000
 #: image noise variance per coordinate assumed by the coefficients' Gaussian prior, as a share
 #: of the frame's mean squared centred image coordinate (3 % RMS noise)
 NOISE_SHARE = 1e-3
-#: the mode coefficients' whitened squared norm is kept within this many per mode (3 sigma
-#: RMS): a stale model is not extrapolated far past the shapes it was built from
+#: each mode's whitened squared coefficient is kept within this (3 sigma): a stale model is
+#: not extrapolated far past the shapes it was built from (docs/decisions/0449)
 MODE_BOUND = 9.0
 #: alternations of rotation and coefficients per frame, Gauss-Newton steps per rotation fit
 ALTERNATIONS = 4
@@ -161,8 +162,8 @@ def fit_frame(w, mean, modes, R, c, prior=0.0, alternations=ALTERNATIONS, varian
     ``mean + sum_k c_k modes_k`` (``mean: (3, P)``, ``modes: (r, 3, P)``, both centred over
     these tracks), starting from ``R`` and ``c``; ``prior`` pulls ``c`` towards the given one;
     ``variances: (r,)`` the Gaussian prior's (None: no prior), image noise variance
-    ``noise_share * mean(w^2)``; the coefficients stay within ``sum_k c_k^2 / var_k <=
-    bound * r`` (:func:`map_coefficients`)."""
+    ``noise_share * mean(w^2)``; each coefficient stays within ``c_k^2 / var_k <= bound``
+    (:func:`map_coefficients`)."""
     c_prior = c
     sigma2 = noise_share * float(np.mean(w ** 2)) if variances is not None else 0.0
     scale = np.ones(modes.shape[0]) if variances is None else variances
@@ -180,33 +181,24 @@ def fit_frame(w, mean, modes, R, c, prior=0.0, alternations=ALTERNATIONS, varian
 
 
 def map_coefficients(G, g, variances, sigma2, lam=0.0, c_prior=None, bound=MODE_BOUND):
-    """Mode coefficients ``(r,)`` minimising ``||A c - b||^2 + m sigma2 sum_k c_k^2 / var_k
-    + lam ||c - c_prior||^2`` (``G = A^T A: (r, r)``, ``g = A^T b: (r,)``) with m = 1 (the MAP
-    estimate) or, where that leaves the frame's whitened coefficients ``u = c / sqrt(var)``
-    beyond ``|u|^2 <= bound * r``, the smallest m > 1 that brings them onto it: a model does
-    not extrapolate its modes far past the shapes it was built from. ``sigma2`` 0: least
-    squares, unbounded."""
+    """Mode coefficients ``(r,)`` minimising ``||A c - b||^2 + sigma2 sum_k c_k^2 / var_k
+    + lam ||c - c_prior||^2`` (``G = A^T A: (r, r)``, ``g = A^T b: (r,)``): the MAP
+    estimate, with each whitened coefficient ``u_k = c_k / sqrt(var_k)`` kept within
+    ``u_k^2 <= bound`` (a box, solved as bounded least squares where the MAP estimate leaves
+    it): a model does not extrapolate any of its modes far past the shapes it was built from.
+    ``sigma2`` 0: least squares, unbounded."""
     sd = np.sqrt(variances)
     rhs = g + (lam * c_prior if lam else 0.0)
-    K = (G + lam * np.eye(G.shape[0])) * np.outer(sd, sd)            # whitened data term
-    K[np.diag_indices_from(K)] += 1e-12 * np.trace(K) + 1e-300
-    kappa, Q = np.linalg.eigh(K)
-    kappa = np.maximum(kappa, 0.0)
-    q = Q.T @ (sd * rhs)
-
-    def whitened(log_m):                      # u in K's eigenbasis at weight m = e^log_m
-        return q / (kappa + sigma2 * np.exp(log_m))
-
-    def excess(log_m):
-        u = whitened(log_m)
-        return float(u @ u) - bound * G.shape[0]
-    log_m = 0.0
-    if sigma2 > 0 and excess(0.0) > 0:
-        high = 1.0
-        while excess(high) > 0 and high < 200:
-            high *= 2
-        log_m = brentq(excess, 0.0, high, xtol=1e-3)
-    return sd * (Q @ whitened(log_m))
+    H = (G + lam * np.eye(G.shape[0])) * np.outer(sd, sd)            # whitened data term
+    H[np.diag_indices_from(H)] += sigma2 + 1e-12 * np.trace(H) + 1e-300
+    q = sd * rhs
+    u = np.linalg.solve(H, q)
+    limit = np.sqrt(bound)
+    if sigma2 > 0 and np.abs(u).max() > limit:
+        L = np.linalg.cholesky(H)                     # ||L^T u - L^-1 q||^2 = the objective
+        u = lsq_linear(L.T, solve_triangular(L, q, lower=True), bounds=(-limit, limit),
+                       method='bvls').x
+    return sd * u
 
 
 class Tracker:
