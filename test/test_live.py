@@ -124,7 +124,8 @@ def test_coefficients_are_the_map_estimate_inside_the_box_and_the_bounded_one_be
         c = tracking.map_coefficients(G, A.T @ b, var, sigma2, bound=9.0)
         assert np.all(c ** 2 / var <= 9.0 * (1 + 1e-9)), c ** 2 / var
         # the minimiser of the same objective over the box, found independently
-        objective = lambda c: np.sum((A @ c - b) ** 2) + sigma2 * np.sum(c ** 2 / var)
+        def objective(c):
+            return np.sum((A @ c - b) ** 2) + sigma2 * np.sum(c ** 2 / var)
         box = [(-3 * s, 3 * s) for s in np.sqrt(var)]
         ref = minimize(objective, np.zeros(5), bounds=box, method='L-BFGS-B',
                        options=dict(ftol=1e-15, gtol=1e-12)).x
