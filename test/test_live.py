@@ -2,8 +2,8 @@
 (tracking + mapping) against a real rigid solver and the Grassmannian one."""
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 from scipy.optimize import minimize
+from scipy.spatial.transform import Rotation
 
 from doubles import (bending_sheet as make_sequence, frames_of, RigidALS, sliding_windows,
                      stacked)
@@ -123,8 +123,8 @@ def test_coefficients_are_the_map_estimate_inside_the_box_and_the_bounded_one_be
         b = A @ (np.array(u) * np.sqrt(var)) + 0.01 * rng.standard_normal(400)
         c = tracking.map_coefficients(G, A.T @ b, var, sigma2, bound=9.0)
         assert np.all(c ** 2 / var <= 9.0 * (1 + 1e-9)), c ** 2 / var
-        # the minimiser of the same objective over the box, found independently
-        def objective(c):
+
+        def objective(c):         # the same objective's minimiser over the box, independently
             return np.sum((A @ c - b) ** 2) + sigma2 * np.sum(c ** 2 / var)
         box = [(-3 * s, 3 * s) for s in np.sqrt(var)]
         ref = minimize(objective, np.zeros(5), bounds=box, method='L-BFGS-B',
