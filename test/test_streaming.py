@@ -118,7 +118,9 @@ def schedule_length(cap):
 def test_resume_warm_start_resumes_the_previous_run_at_equal_accuracy():
     seq = make_sequence('bending', n_frames=90, n_points=400)
     factory = RecordingGrassmann()
-    options = dict(context_frames=20, key_frames=0)
+    # no window closed early for a fresh model (a tracked frame's residual, which varies with
+    # the BLAS kernel, asks for one): every window after the first holds 10 new frames
+    options = dict(context_frames=20, key_frames=0, residual_limit=1e6)
     resumed = e3d(streamed(seq.W, factory, **options), seq.S)     # the default 'resume'
     model = e3d(streamed(seq.W, GrassmannNRSfM, warm_start='model', **options), seq.S)
     reports, inits, results = factory.reports, factory.inits, factory.results
