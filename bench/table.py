@@ -6,6 +6,7 @@ import argparse
 import json
 import os
 from pathlib import Path
+import statistics
 import sys
 
 from . import common
@@ -335,14 +336,24 @@ def kinect_paper_table(doc):
 
 def perspective_table(doc):
     lines = ['| sequence | F x P | orthographic projections | first solve | perspective '
-             '(reconstruct + K) | rigid | perspective / orthographic |',
-             '|---|---|---|---|---|---|---|']
+             '(reconstruct + K) | rigid | perspective / orthographic | the same over draws of '
+             "the tracks' rounding: median (range, draws) |",
+             '|---|---|---|---|---|---|---|---|']
     for r in doc['rows']:
         lines.append(f"| {r['sequence']} | {r.get('F', '-')} x {r.get('P', '-')} | "
                      f"{fmt(r.get('e3d_orthographic_projection'))} | "
                      f"{fmt(r.get('e3d_first_solve_S'))} | {fmt(r.get('e3d_perspective'))} | "
-                     f"{fmt(r.get('e3d_rigid'))} | {fmt(r.get('ratio_to_orthographic'), 3)} |")
+                     f"{fmt(r.get('e3d_rigid'))} | {fmt(r.get('ratio_to_orthographic'), 3)} | "
+                     f"{over_draws(r.get('ratio_draws'))} |")
     return lines
+
+
+def over_draws(ratios):
+    """``median (low-high, n)`` of a row's ratios over draws, '-' without draws."""
+    if not ratios:
+        return '-'
+    return (f'{fmt(statistics.median(ratios), 3)} ({fmt(min(ratios), 3)}-{fmt(max(ratios), 3)}, '
+            f'{len(ratios)})')
 
 
 def sheets_table(doc):
