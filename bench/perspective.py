@@ -66,6 +66,11 @@ def sheet_shapes(kind, F, P, seed, distance):
     return from_frames(X)
 
 
+def rounding_draw(W, draw):
+    """``W`` perturbed by 1e-9 (relative, seeded by ``draw``): one draw of its rounding."""
+    return W * (1 + 1e-9 * np.random.default_rng(draw).standard_normal(W.shape))
+
+
 def orthographic(S):
     """``(2F, P)``: the x, y rows of ``S: (3F, P)``."""
     return from_frames(as_frames(S, 3)[:, :2, :])
@@ -108,9 +113,9 @@ def case(name, S, W_px, K, config=None, draws=0):
     if 'e3d_orthographic_projection' in row:
         row['ratio_to_orthographic'] = row['e3d_perspective'] / row['e3d_orthographic_projection']
         row['first_solve_ratio'] = row['e3d_first_solve_S'] / row['e3d_orthographic_projection']
-        row['ratio_draws'] = [e3d(reconstructed(W_px * (1 + 1e-9 * np.random.default_rng(
-            d).standard_normal(W_px.shape)), K, config)[0], S) / row[
-            'e3d_orthographic_projection'] for d in range(1, draws + 1)]
+        row['ratio_draws'] = [
+            e3d(reconstructed(rounding_draw(W_px, d), K, config)[0], S)
+            / row['e3d_orthographic_projection'] for d in range(1, draws + 1)]
     return row
 
 

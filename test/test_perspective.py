@@ -161,7 +161,7 @@ def test_rendered_pinhole_face_perspective_beats_ignoring_the_pinhole():
     median 1.12 with one BLAS kernel, 1.30 with another; 0.98-1.90 in all). What holds over
     draws: the median of 5 draws beats the orthographic solve of the same pinhole tracks
     (1.58 x), and no draw is worse than 2 x."""
-    from bench.perspective import face_shapes, orthographic
+    from bench.perspective import face_shapes, orthographic, rounding_draw
     from grass_nrsfm_ros.frontend.scenes import pinhole
     from grass_nrsfm_ros.nrsfm.solver import GrassmannNRSfM
     S = face_shapes(40, 400, seed=0)
@@ -173,7 +173,7 @@ def test_rendered_pinhole_face_perspective_beats_ignoring_the_pinhole():
     ignoring = metrics.e3d(GrassmannNRSfM().fit(x).S, S, scale=True) / reference
     ratios = []
     for draw in range(1, 6):
-        drawn = x * (1 + 1e-9 * np.random.default_rng(draw).standard_normal(x.shape))
+        drawn = rounding_draw(x, draw)
         result = GrassmannNRSfM(projection='perspective').fit(drawn)
         ratios.append(metrics.e3d(result.S, S, scale=True) / reference)
         np.testing.assert_allclose(camera.project(result.S), drawn, atol=1e-9)
