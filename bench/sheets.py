@@ -3,7 +3,8 @@
 Options measured on the same tracks (e3D with a per-frame scale, and its ratio to rigid
 factorisation's; the issue's bar is <= 0.6 for every sheet):
 
-* ``default``: :class:`GrassmannNRSfM` as shipped (its inextensible stage on 'auto');
+* ``default``: :class:`GrassmannNRSfM` as shipped (its inextensible stage on 'auto'; through
+  the pinhole ``projection='perspective'``, whose rounds hold the stage off, record 0725);
 * ``no_inextensible``: the same with ``inextensible='never'`` (the paper's chain);
 * ``isometry_solver`` / ``isometry_sync``: the default result's depths replaced by the local-
   isometry depths of :mod:`grass_nrsfm_ros.nrsfm.isometry` (gradient signs from the solver's
@@ -119,6 +120,7 @@ def options(projection):
         chosen['sheet_transport'] = sheet_transport.TransportSheetNRSfM()
         return chosen
     chosen = {name: PerspectiveNRSfM(solver) for name, solver in chosen.items()}
+    chosen['default'] = GrassmannNRSfM(projection='perspective')    # as shipped (record 0725)
     chosen['max_depth'] = max_depth.MaxDepthNRSfM()
     return chosen
 

@@ -152,15 +152,15 @@ def test_a_rise_of_the_residual_does_not_stop_the_iteration():
 
 @pytest.mark.slow
 @pytest.mark.data
-def test_rendered_pinhole_face_perspective_beats_ignoring_the_pinhole():
+def test_rendered_pinhole_face_perspective_meets_the_bar_over_draws():
     """Issue #37's face bar through the solver's perspective model: a rendered face (the front
     end's renderer, perfect tracks of surface samples) reconstructed from its pinhole tracks,
-    against the e3D of its orthographic projections' reconstruction. The bar (1.2 x) is not
-    held here: one draw is not a figure, since the rounds land anywhere in a band and the ratio
-    moves with the input's last bits (record 0707, later: over 10 draws perturbed by 1e-9,
-    median 1.12 with one BLAS kernel, 1.30 with another; 0.98-1.90 in all). What holds over
-    draws: the median of 5 draws beats the orthographic solve of the same pinhole tracks
-    (1.58 x), and no draw is worse than 2 x."""
+    against the e3D of its orthographic projections' reconstruction. One draw is not a figure
+    (the rounds land anywhere in a band and the ratio moves with the input's last bits, record
+    0707), so the bar (1.2 x) is held by the median of 5 draws of the tracks' rounding; no draw
+    is worse than 2 x, and the median beats the orthographic solve of the same pinhole tracks
+    (1.58 x). With the inextensible stage decided in every round (before record 0725) the
+    median was 1.21 with one BLAS kernel, 1.30 with another."""
     from bench.perspective import face_shapes, orthographic, rounding_draw
     from grass_nrsfm_ros.frontend.scenes import pinhole
     from grass_nrsfm_ros.nrsfm.solver import GrassmannNRSfM
@@ -177,4 +177,18 @@ def test_rendered_pinhole_face_perspective_beats_ignoring_the_pinhole():
         result = GrassmannNRSfM(projection='perspective').fit(drawn)
         ratios.append(metrics.e3d(result.S, S, scale=True) / reference)
         np.testing.assert_allclose(camera.project(result.S), drawn, atol=1e-9)
-    assert np.median(ratios) < ignoring and max(ratios) <= 2.0, (np.round(ratios, 3), ignoring)
+    assert np.median(ratios) <= 1.2 and np.median(ratios) < ignoring and max(ratios) <= 2.0, \
+        (np.round(ratios, 3), ignoring)
+
+
+def test_the_rounds_hold_the_inextensible_stage_off_unless_asked():
+    """Under 'auto' the perspective rounds run without the inextensible stage (record 0725: its
+    per-round check, biased through a pinhole, made the faces' rounds a lottery); 'always'
+    still runs it in every round."""
+    from grass_nrsfm_ros.nrsfm.solver import GrassmannNRSfM
+    seq = synthetic.make_sequence('bending', n_frames=12, n_points=150, seed=0)
+    x = camera.project(pinhole_shapes(seq.S, 5.0))
+    auto = GrassmannNRSfM(projection='perspective').fit(x)
+    always = GrassmannNRSfM(projection='perspective', inextensible='always').fit(x)
+    assert 'refinement' not in auto.report.stages
+    assert 'refinement' in always.report.stages and always.report.inextensible

@@ -171,7 +171,8 @@ SOLVER_PARAMS = (
           "After a cold solve, each frame's depths made inextensible (edge lengths from the "
           "longest image lengths): 'auto' on dense tracks (P >= "
           f'{INEXTENSIBLE_MIN_POINTS}) when that cuts the variation of the 3D edge lengths '
-          f"below {INEXTENSIBLE_RATIO:g} of the solver's, 'always', or 'never' (the paper; "
+          f"below {INEXTENSIBLE_RATIO:g} of the solver's (held off in the rounds of projection "
+          "'perspective'), 'always', or 'never' (the paper; "
           'a surface known to stretch). A solve given no warm start whose depths are kept '
           'then tries rotations registered to them, kept when its edge lengths vary less.'),
     _mode('thinning', 'auto', ('auto', 'never'),

@@ -198,9 +198,14 @@ class GrassmannNRSfM:
         """``projection='perspective'``: the projective-depth iteration around this chain run
         orthographically (``init`` starts its first solve only). The kept round's result with
         ``S`` the camera-frame shapes, ``translation`` zero (``S`` projects onto ``W``) and
-        ``report.perspective`` the iteration's rounds."""
-        chain = _Rounds(GrassmannNRSfM(**{**self.get_params(), 'projection': 'orthographic'}),
-                        init=init, progress=progress, beta_max=beta_max)
+        ``report.perspective`` the iteration's rounds. The inextensible stage runs in the
+        rounds only when asked for ('always'): under 'auto' it is held off
+        (docs/decisions/0725)."""
+        params = {**self.get_params(), 'projection': 'orthographic'}
+        if params['inextensible'] == 'auto':
+            params['inextensible'] = 'never'
+        chain = _Rounds(GrassmannNRSfM(**params), init=init, progress=progress,
+                        beta_max=beta_max)
         outcome = PerspectiveNRSfM(chain).fit(W)
         report = replace(outcome.result.report, perspective=outcome.report())
         return replace(outcome.result, S=outcome.S, report=report,
