@@ -7,7 +7,9 @@ paper's window x 253-508, y 132-363. Reconstructions (the names of the e3D figur
 
 * ``whole``: the tracks alive in every frame, in normalised coordinates ``K^-1 [u v 1]``,
   solved at once by ``GrassmannNRSfM`` as orthographic projections (the pictures show it);
-* ``whole_perspective``: the same through the pinhole (``projection='perspective'``);
+* ``whole_perspective``: the same through the pinhole (``projection='perspective'``), the
+  low-rank chain (``surface='any'``); ``surface_auto`` in the JSON: what the default
+  ``surface='auto'`` decides on these tracks (record 0726: a sheet gets ``sheet_perspective``);
 * ``rigid``: rigid factorisation of the same;
 * ``sheet_perspective``: the same through the pinhole with ``surface='sheet'`` (the
   maximum-depth heuristic, its lengths from 40 key frames, records 0723, 0724);
@@ -51,6 +53,7 @@ from grass_nrsfm_ros.frontend.sources import open_source
 from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM
 from grass_nrsfm_ros.nrsfm.measurement import frame_rows
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
+from grass_nrsfm_ros.nrsfm.stages import surface as surface_stage
 from grass_nrsfm_ros.params import defaults
 from grass_nrsfm_ros.pipeline import make_pipeline, reconstruct_live
 
@@ -272,8 +275,10 @@ def measure(args, frames_folder, K):
     solve_seconds = time.perf_counter() - started
     _, S_rigid = rigid_factorisation(Wn)
     log(f'GrassmannNRSfM: {int(complete.sum())} complete tracks in {solve_seconds:.0f} s')
-    S_perspective = GrassmannNRSfM(projection='perspective').fit(Wn).S
+    S_perspective = GrassmannNRSfM(projection='perspective', surface='any').fit(Wn).S
     log('GrassmannNRSfM through the pinhole: done')
+    decided = surface_stage.check(Wn)           # what surface 'auto' chooses (record 0726)
+    log(surface_stage.note(decided))
     started = time.perf_counter()
     S_sheet = GrassmannNRSfM(projection='perspective', surface='sheet').fit(Wn).S
     sheet_seconds = time.perf_counter() - started
@@ -286,7 +291,8 @@ def measure(args, frames_folder, K):
                S_rigid=S_rigid, S_perspective=S_perspective, S_sheet=S_sheet,
                sheet_seconds=sheet_seconds, solve_seconds=solve_seconds,
                iterations=result.report.iterations, S_points=S_points, S_refined=S_refined,
-               live_seconds=live_seconds)
+               live_seconds=live_seconds, surface_variation=decided.variation,
+               surface_sheet=decided.sheet)
     if cache is not None:
         np.savez_compressed(cache, **run, **{f'count_{k}': v for k, v in counts.items()})
     return {**run, 'counts': counts}
@@ -344,6 +350,8 @@ def main(argv=None):
         solve_seconds=float(run['solve_seconds']), iterations=int(run['iterations']),
         sheet_seconds=float(run['sheet_seconds']),
         live_seconds=float(run['live_seconds']),
+        surface_auto=dict(variation=float(run.get('surface_variation', np.nan)),
+                          sheet=bool(run.get('surface_sheet', False))),
         coordinates='whole sequence: normalised K^-1 [u v 1] of the complete tracks; live '
         'pipeline: pixels of every track with K')
     figures['ground_truth'] = ground_truth_figures(

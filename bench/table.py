@@ -331,6 +331,12 @@ def kinect_paper_table(doc):
     cells = f"{doc['tracks_frame1']} / {doc['tracks_complete']} / {doc['tracks_total']}"
     for name, value in sorted((gt.get('e3d') or {}).items()):
         lines.append(f"| {cells} | {fmt(doc['ms_per_frame'], 0)} | {name} | {fmt(value)} |")
+    auto = doc.get('surface_auto')
+    if auto:
+        chosen = ('a sheet (sheet_perspective)' if auto['sheet']
+                  else 'not a sheet (whole_perspective)')
+        lines += ['', f"surface 'auto' on the complete tracks: edge-length variation "
+                  f"{fmt(auto['variation'])}, {chosen} (record 0726)."]
     return lines
 
 

@@ -188,7 +188,8 @@ def test_the_rounds_hold_the_inextensible_stage_off_unless_asked():
     from grass_nrsfm_ros.nrsfm.solver import GrassmannNRSfM
     seq = synthetic.make_sequence('bending', n_frames=12, n_points=150, seed=0)
     x = camera.project(pinhole_shapes(seq.S, 5.0))
-    auto = GrassmannNRSfM(projection='perspective').fit(x)
-    always = GrassmannNRSfM(projection='perspective', inextensible='always').fit(x)
+    auto = GrassmannNRSfM(projection='perspective', surface='any').fit(x)
+    always = GrassmannNRSfM(projection='perspective', surface='any',
+                            inextensible='always').fit(x)
     assert 'refinement' not in auto.report.stages
     assert 'refinement' in always.report.stages and always.report.inextensible

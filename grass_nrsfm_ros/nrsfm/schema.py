@@ -188,14 +188,16 @@ SOLVER_PARAMS = (
           "projecting onto the tracks, each frame's mean depth 1; 'auto': perspective where "
           'camera intrinsics come with the tracks (reconstruct with K or --camera), '
           'orthographic otherwise.'),
-    _mode('surface', 'any', ('any', 'sheet'),
+    _mode('surface', 'auto', ('auto', 'any', 'sheet'),
           "What is reconstructed. 'any': the low-rank chain (Algorithm 1 and its stages); "
           "'sheet': a surface that bends without stretching (paper, a mat, a sheet), from "
           'its own structure instead: through a pinhole (projection perspective) Chhatkuli '
           "et al.'s maximum-depth heuristic on the normalised tracks (tens of seconds per "
           'sequence, offline use; docs/decisions/0709, 0440); orthographic, local-isometry '
-          'depths with their signs carried from frame to frame (seconds; 0714). Complete '
-          'tracks only.'),
+          "depths with their signs carried from frame to frame (seconds; 0714). 'auto': "
+          "through a pinhole, a solve without a warm start of complete tracks is 'sheet' when "
+          "the maximum-depth depths on 10 of its frames keep their edge lengths, else 'any' "
+          "(0726); orthographic, 'any'. Complete tracks only for 'sheet'."),
     _mode('robust', 'never', ('never', 'cauchy'),
           "'cauchy': tracks whose residual against a low-rank approximation of all tracks, "
           "or against the combination of their nearest tracks, is far above the others' (a "

@@ -28,7 +28,7 @@ from .problem import initial_shapes, NRSfMResult, Problem, SolverReport, WarmSta
 from .schema import SOLVER_PARAMS, SOLVER_SPECS, validate_solver
 from .sheet_transport import TransportSheetNRSfM
 from .stages import (fill, refinement, registration, robust, rotation_check, rotations,
-                     thinning)
+                     surface, thinning)
 
 #: a masked problem's solve is followed by this many refill rounds (docs/decisions/0802)
 REFILL_ROUNDS = 1
@@ -110,6 +110,8 @@ class GrassmannNRSfM:
             if visible is not None and not np.all(visible):
                 raise InvalidInputError("projection 'perspective' takes complete tracks; "
                                         'visible marks some entries unseen')
+            if surface.applies(params, init, visible, np.asarray(W, dtype=np.float64)):
+                return self._surface_decided(W, params, progress, beta_max)
             return self._perspective(W, init, progress, beta_max)
         with one_blas_thread():
             start, timer = time.perf_counter(), Timer()
@@ -169,14 +171,15 @@ class GrassmannNRSfM:
         return result
 
     @staticmethod
-    def _sheet(W, params, visible):
+    def _sheet(W, params, visible, fitted=None):
         """``surface='sheet'``: a surface that bends without stretching, from its own
         structure instead of the low-rank chain. Pinhole (``projection='perspective'``, the
         normalised tracks): the maximum-depth heuristic (:mod:`.max_depth`), ``S`` in the camera
         frame projecting onto ``W``. Orthographic: local-isometry depths with their signs
         carried from frame to frame (:mod:`.sheet_transport`), ``S`` the centred tracks with
         those depths, ``translation`` the tracks' centroids. ``R`` the identity (the camera
-        frame is the world's), no groups."""
+        frame is the world's), no groups. ``fitted``: the heuristic's result on these tracks
+        already made (the stage 'surface' checked every frame)."""
         if visible is not None and not np.all(visible) or not np.isfinite(W).all():
             raise InvalidInputError("surface 'sheet' takes complete tracks; some entries are "
                                     'unseen')
@@ -184,7 +187,7 @@ class GrassmannNRSfM:
         F, P = W.shape[0] // 2, W.shape[1]
         with one_blas_thread():
             if params['projection'] == 'perspective':
-                result = MaxDepthNRSfM().fit(W)
+                result = fitted if fitted is not None else MaxDepthNRSfM().fit(W)
                 report, translation = _max_depth_report(result, P), np.zeros((2 * F, 1))
             else:
                 result = TransportSheetNRSfM().fit(W)
@@ -193,6 +196,22 @@ class GrassmannNRSfM:
         return NRSfMResult(S=result.S, R=np.repeat(np.eye(3)[None], F, axis=0),
                            translation=translation, groups=np.zeros(P, dtype=int),
                            blocks=np.array([0, F]), report=report)
+
+    def _surface_decided(self, W, params, progress, beta_max):
+        """``surface='auto'`` through a pinhole: the stage 'surface' decides between the sheet
+        (:meth:`_sheet`) and the projective-depth iteration (:meth:`_perspective`)."""
+        start = time.perf_counter()
+        with one_blas_thread():
+            decided = surface.check(np.asarray(W, dtype=np.float64))
+        seconds = time.perf_counter() - start
+        result = (self._sheet(W, params, None, decided.fitted) if decided.sheet
+                  else self._perspective(W, None, progress, beta_max))
+        report = result.report
+        report.stages.insert(0, surface.NAME)
+        report.notes.insert(0, surface.note(decided))
+        report.seconds = {**report.seconds, surface.NAME: seconds,
+                          'total': report.seconds.get('total', 0.0) + seconds}
+        return result
 
     def _perspective(self, W, init, progress, beta_max):
         """``projection='perspective'``: the projective-depth iteration around this chain run
