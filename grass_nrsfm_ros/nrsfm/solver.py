@@ -11,7 +11,9 @@ The chain (:meth:`GrassmannNRSfM.fit`): (robust track weights ->) rotations -> r
 parameters are never changed.
 With ``projection='perspective'`` ``W`` holds normalised pinhole coordinates and the whole
 chain runs inside the projective-depth iteration (:mod:`.perspective`); ``S`` is then in the
-camera frame, projecting onto ``W``, each frame's mean depth 1.
+camera frame, projecting onto ``W``, each frame's mean depth 1. Before it, under
+``surface='auto'``, the stage 'surface' (:mod:`.stages.surface`) may find the tracks a sheet
+that bends without stretching, reconstructed then by :mod:`.max_depth` instead.
 """
 from dataclasses import replace
 import time
