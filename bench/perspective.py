@@ -107,7 +107,9 @@ def case(name, S, W_px, K, config=None, draws=0):
     row['e3d_first_solve_S'] = e3d(GrassmannNRSfM().fit(x).S, S)
     row['e3d_perspective'] = e3d(S_out, S)
     row['e3d_rigid'] = e3d(rigid_factorisation(x)[1], S)
-    iteration = report['perspective']
+    row['stages'] = report['stages']
+    iteration = report['perspective'] or {'rounds': [], 'kept': None,
+                                          'stopped': 'no iteration: ' + report['stages'][-1]}
     row['rounds'] = iteration['rounds']
     row['kept'], row['stopped'] = iteration['kept'], iteration['stopped']
     if 'e3d_orthographic_projection' in row:
