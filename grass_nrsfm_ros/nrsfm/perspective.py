@@ -40,8 +40,8 @@ import numpy as np
 from .measurement import as_frames, from_frames, InvalidInputError, validate_tracks
 
 #: rounds of the iteration (the first orthographic solve is round 0); all are run (no stop at
-#: a rise of the residual) and the lowest residual's kept (docs/decisions/0707)
-MAX_ROUNDS = 4
+#: a rise of the residual) and the lowest residual's kept (docs/decisions/0707, 0727)
+MAX_ROUNDS = 8
 #: stop when the relative change of the depths falls below this
 TOL = 0.02
 #: 1 + delta is kept at least this (a point cannot reach the camera's plane)
