@@ -119,10 +119,10 @@ def options(projection):
         chosen['isometry_solver'] = isometry.SheetNRSfM(GrassmannNRSfM(), signs='solver')
         chosen['sheet_transport'] = sheet_transport.TransportSheetNRSfM()
         return chosen
-    chosen = {name: PerspectiveNRSfM(solver) for name, solver in chosen.items()}
-    chosen['default'] = GrassmannNRSfM(projection='perspective')    # as shipped (record 0725)
-    chosen['max_depth'] = max_depth.MaxDepthNRSfM()
-    return chosen
+    return {'default': GrassmannNRSfM(projection='perspective'),     # as shipped (record 0725)
+            **{name: PerspectiveNRSfM(solver) for name, solver in chosen.items()
+               if name != 'default'},
+            'max_depth': max_depth.MaxDepthNRSfM()}
 
 
 def case(name, projection, W, S, only=None):

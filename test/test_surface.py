@@ -4,8 +4,8 @@ own model (record 0726)."""
 import numpy as np
 import pytest
 
-from grass_nrsfm_ros.nrsfm import camera, GrassmannNRSfM, metrics, synthetic
-from grass_nrsfm_ros.nrsfm.measurement import as_frames, from_frames
+from bench.perspective import sheet_shapes
+from grass_nrsfm_ros.nrsfm import camera, GrassmannNRSfM, metrics
 from grass_nrsfm_ros.nrsfm.problem import WarmStart
 from grass_nrsfm_ros.nrsfm.stages import surface
 
@@ -13,9 +13,7 @@ from grass_nrsfm_ros.nrsfm.stages import surface
 def pinhole_sequence(kind, F=12, P=150, seed=0, distance=5.0):
     """``(W, S)``: normalised tracks and camera-frame truth of a synthetic surface (size about
     2) ``distance`` along the optical axis."""
-    X = as_frames(synthetic.make_sequence(kind, n_frames=F, n_points=P, seed=seed).S, 3).copy()
-    X[:, 2] += distance
-    S = from_frames(X)
+    S = sheet_shapes(kind, F, P, seed, distance)
     return camera.project(S), S
 
 
