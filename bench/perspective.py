@@ -58,12 +58,18 @@ def face_shapes(F, P, seed=0):
     return from_frames(X.transpose(0, 2, 1))
 
 
+def along_axis(S, distance):
+    """Camera-frame shapes ``S: (3F, P)`` moved ``distance`` along the optical axis."""
+    X = as_frames(S, 3).copy()
+    X[:, 2] += distance
+    return from_frames(X)
+
+
 def sheet_shapes(kind, F, P, seed, distance):
     """A synthetic sheet's camera-frame shapes ``distance`` (its size is about 2) along the
     optical axis."""
-    X = as_frames(synthetic.make_sequence(kind, n_frames=F, n_points=P, seed=seed).S, 3).copy()
-    X[:, 2] += distance
-    return from_frames(X)
+    return along_axis(synthetic.make_sequence(kind, n_frames=F, n_points=P, seed=seed).S,
+                      distance)
 
 
 def rounding_draw(W, draw):

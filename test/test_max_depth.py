@@ -3,8 +3,9 @@ bench/sheets.py (column max_depth), docs/decisions/0709."""
 import numpy as np
 import pytest
 
-from grass_nrsfm_ros.nrsfm import camera, max_depth, metrics, synthetic
-from grass_nrsfm_ros.nrsfm.measurement import as_frames, from_frames, InvalidInputError
+from bench.perspective import sheet_shapes
+from grass_nrsfm_ros.nrsfm import camera, max_depth, metrics
+from grass_nrsfm_ros.nrsfm.measurement import InvalidInputError
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
 
 BAR = 0.6       # issue 37: a sheet's e3D at most 0.6 of rigid factorisation's
@@ -13,10 +14,7 @@ BAR = 0.6       # issue 37: a sheet's e3D at most 0.6 of rigid factorisation's
 def pinhole_bending(F=10, P=80, seed=0, distance=5.0):
     """``(W, S)``: normalised tracks and camera-frame truth of the synthetic bending sheet
     (size about 2) ``distance`` along the optical axis."""
-    X = as_frames(synthetic.make_sequence('bending', n_frames=F, n_points=P, seed=seed).S,
-                  3).copy()
-    X[:, 2] += distance
-    S = from_frames(X)
+    S = sheet_shapes('bending', F, P, seed, distance)
     return camera.project(S), S
 
 

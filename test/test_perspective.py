@@ -4,6 +4,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from bench.perspective import along_axis
 from grass_nrsfm_ros.nrsfm import camera, metrics, synthetic
 from grass_nrsfm_ros.nrsfm.measurement import (as_frames, from_frames, InvalidInputError,
                                                to_camera)
@@ -27,17 +28,10 @@ class FlippingRigid:
         return SimpleNamespace(S=S)
 
 
-def pinhole_shapes(S_camera, distance):
-    """Camera-frame shapes ``(3F, P)`` moved ``distance`` along the optical axis."""
-    X = as_frames(S_camera, 3).copy()
-    X[:, 2] += distance
-    return from_frames(X)
-
-
 def rigid_object(seed=0, F=30, P=200, distance=3.0):
     seq = synthetic.make_sequence('bending', n_frames=F, n_points=P, seed=seed)
     frozen = np.repeat(as_frames(seq.S_world, 3)[F // 5][None], F, axis=0)  # curled
-    return pinhole_shapes(to_camera(seq.R, from_frames(frozen)), distance)
+    return along_axis(to_camera(seq.R, from_frames(frozen)), distance)
 
 
 @pytest.mark.parametrize('seed', [0, 1])
@@ -187,7 +181,7 @@ def test_the_rounds_hold_the_inextensible_stage_off_unless_asked():
     still runs it in every round."""
     from grass_nrsfm_ros.nrsfm.solver import GrassmannNRSfM
     seq = synthetic.make_sequence('bending', n_frames=12, n_points=150, seed=0)
-    x = camera.project(pinhole_shapes(seq.S, 5.0))
+    x = camera.project(along_axis(seq.S, 5.0))
     auto = GrassmannNRSfM(projection='perspective', surface='any').fit(x)
     always = GrassmannNRSfM(projection='perspective', surface='any',
                             inextensible='always').fit(x)
