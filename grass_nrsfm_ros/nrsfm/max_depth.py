@@ -51,7 +51,7 @@ from . import isometry
 from .density import affine_weights
 from .inextensible import neighbour_edges, trajectory_embedding
 from .measurement import (as_frames, centre, frame_rows, from_frames, InvalidInputError,
-                          track_scale, validate_tracks)
+                          spread_frames, track_scale, validate_tracks)
 
 #: neighbours per track in the edge graph
 NEIGHBOURS = 8
@@ -245,12 +245,13 @@ def interpolated_depths(W, anchors, Z_anchor, k=NEIGHBOURS):
 @dataclass
 class MaxDepthResult:
     """``S: (3F, P)`` camera frame (projects onto the tracks; mean depth 1 over the sequence),
-    ``Z: (F, P)`` its depths, ``anchors``: the tracks the LP solved, ``info``: see
-    :func:`max_depth`."""
+    ``Z: (F, P)`` its depths, ``anchors``: the tracks the LP solved, ``edges = (i, j)``: their
+    neighbour graph (indices into ``anchors``), ``info``: see :func:`max_depth`."""
     S: np.ndarray
     Z: np.ndarray
     anchors: np.ndarray
     info: dict = field(default_factory=dict)
+    edges: tuple = None
 
 
 class MaxDepthNRSfM:
@@ -296,14 +297,14 @@ class MaxDepthNRSfM:
             info['refine_seconds_cpu'] = time.process_time() - t0
         Z = interpolated_depths(x, anchors, Z_a, self.neighbours)
         Z = Z / Z.mean()
-        return MaxDepthResult(S=shapes(x, Z), Z=Z, anchors=anchors, info=info)
+        return MaxDepthResult(S=shapes(x, Z), Z=Z, anchors=anchors, info=info, edges=edges)
 
     def _anchor_depths(self, sub, edges):
         """``(Z: (F, n), d, info)`` of the anchors' tracks ``sub: (2F, n)``: the LP on every
         frame, or on ``key_frames`` of them and then, with their lengths, on the others
         (LENGTH_CHUNK frames per LP)."""
         F = sub.shape[0] // 2
-        keys = np.unique(np.linspace(0, F - 1, min(F, int(self.key_frames))).round().astype(int))
+        keys = spread_frames(F, self.key_frames)
         Z_keys, d, info = max_depth(sub[frame_rows(keys, 2)], edges, tol=self.tol)
         if keys.size == F:
             return Z_keys, d, info

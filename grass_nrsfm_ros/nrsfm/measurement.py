@@ -93,6 +93,12 @@ def frame_rows(frames, rows_per_frame):
     return (rows_per_frame * np.asarray(frames)[:, None] + np.arange(rows_per_frame)).ravel()
 
 
+def spread_frames(F, n):
+    """``(m,)`` sorted distinct frame indices, ``m = min(F, n)``, spread evenly over ``F``
+    frames, the first and the last included."""
+    return np.unique(np.linspace(0, F - 1, min(F, int(n))).round().astype(int))
+
+
 def from_frames(X):
     """Stack ``X: (F, r, P)`` back to ``(rF, P)``."""
     return X.reshape(-1, X.shape[-1])

@@ -112,8 +112,9 @@ class GrassmannNRSfM:
             if visible is not None and not np.all(visible):
                 raise InvalidInputError("projection 'perspective' takes complete tracks; "
                                         'visible marks some entries unseen')
-            if surface.applies(params, init, visible, np.asarray(W, dtype=np.float64)):
-                return self._surface_decided(W, params, progress, beta_max)
+            tracks = np.asarray(W, dtype=np.float64)
+            if surface.applies(params, init, visible, tracks):
+                return self._surface_decided(tracks, params, progress, beta_max)
             return self._perspective(W, init, progress, beta_max)
         with one_blas_thread():
             start, timer = time.perf_counter(), Timer()
@@ -204,7 +205,7 @@ class GrassmannNRSfM:
         (:meth:`_sheet`) and the projective-depth iteration (:meth:`_perspective`)."""
         start = time.perf_counter()
         with one_blas_thread():
-            decided = surface.check(np.asarray(W, dtype=np.float64))
+            decided = surface.check(W)
         seconds = time.perf_counter() - start
         result = (self._sheet(W, params, None, decided.fitted) if decided.sheet
                   else self._perspective(W, None, progress, beta_max))

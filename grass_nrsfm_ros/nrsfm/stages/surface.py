@@ -13,9 +13,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..inextensible import length_variation, neighbour_edges
+from ..inextensible import length_variation
 from ..max_depth import MaxDepthNRSfM
-from ..measurement import frame_rows
+from ..measurement import frame_rows, spread_frames
 
 NAME = 'surface'
 #: frames (spread over the sequence) the heuristic runs on for the decision
@@ -50,11 +50,9 @@ def applies(params, init, visible, W):
 def check(W):
     """The :class:`Check` of the normalised tracks ``W: (2F, P)``."""
     F = W.shape[0] // 2
-    keys = np.unique(np.linspace(0, F - 1, min(F, CHECK_FRAMES)).round().astype(int))
-    sub = W[frame_rows(keys, 2)]
-    result = MaxDepthNRSfM().fit(sub)
-    i, j = neighbour_edges(sub[:, result.anchors])
-    variation = length_variation(result.S[:, result.anchors], i, j)
+    keys = spread_frames(F, CHECK_FRAMES)
+    result = MaxDepthNRSfM().fit(W[frame_rows(keys, 2)])
+    variation = length_variation(result.S[:, result.anchors], *result.edges)
     return Check(variation, int(keys.size), int(result.anchors.size),
                  variation < SHEET_VARIATION, result if keys.size == F else None)
 
