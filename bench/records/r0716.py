@@ -93,7 +93,7 @@ def rounds(name, n_rounds):
     chain = Chain()
     out = pp.PerspectiveNRSfM(chain, max_rounds=n_rounds).fit(x)
     dt = true_delta(S)
-    kept = [r for r in out.rounds if not r.trial]
+    kept = out.rounds
     e = [ratio(x, r.delta, S, ortho) for r in kept]
     cells = [f'{r.index}:{v:.3f} res {r.residual:.2e} fit {r.fit:.4f} slope '
              f'{np.sum(r.delta * dt) / np.sum(dt * dt):.2f}/'

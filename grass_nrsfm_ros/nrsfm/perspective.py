@@ -11,11 +11,11 @@ paraperspective-to-perspective iteration, 1996).
 :class:`PerspectiveNRSfM` / :func:`fit_perspective` iterate: solve on ``x``; read ``delta``
 from the reconstruction's centred depths; solve on ``x (1 + delta)``; repeat.
 
-* Depth sign. An orthographic solve cannot tell a shape from its depth mirror. On the first
-  round both signs of the first solve's depths are solved and the one whose input the solver
-  fits better (:func:`fit_residual`: the true sign's ``x (1 + delta)`` is a weak-perspective
-  image, the mirror's is not) is kept; every later round takes, frame by frame, the sign
-  that agrees with the previous round's depths.
+* Depth sign. An orthographic solve cannot tell a shape from its depth mirror. The first
+  solve's depths take the sign whose weak-perspective image ``x (1 + delta)`` is closer to
+  rank 3 (:func:`low_rank_sign`: the true sign's is a scaled orthographic image of the
+  shape, the mirror's is not); every later round takes, frame by frame, the sign that agrees
+  with the previous round's depths.
 * Perspective reprojection residual of a round (RMS, normalised units): the solver's
   reconstruction of its input ``x (1 + delta_prev)`` (its x, y plus the input's per-frame
   centroid) at the depths ``1 + delta`` it found, projected, against ``x``.
@@ -56,13 +56,13 @@ class PerspectiveRound:
     """One round: ``sign`` applied to the solver's depths (per frame, ``(F,)``), the
     perspective ``residual`` (RMS, normalised units), the relative ``change`` of the depths
     from the previous round (NaN on round 0), ``delta: (F, P)`` its relative depths (signs
-    applied), ``trial``: a first-round sign trial not kept."""
+    applied), ``fit``: the solver's own relative residual of its input (:func:`fit_residual`;
+    NaN on round 0)."""
     index: int
     residual: float
     change: float
     sign: np.ndarray
     delta: np.ndarray
-    trial: bool = False
     fit: float = float('nan')
 
 
@@ -82,15 +82,15 @@ class PerspectiveResult:
 
     @property
     def residuals(self):
-        """The perspective residual of every round kept in the sequence (no trials)."""
-        return [r.residual for r in self.rounds if not r.trial]
+        """The perspective residual of every round."""
+        return [r.residual for r in self.rounds]
 
     def report(self):
         """The iteration as plain JSON types."""
         return {'kept': self.kept, 'stopped': self.stopped, 'scale': self.scale,
                 'clamped_points': self.clamped,
                 'rounds': [{'index': r.index, 'residual': r.residual, 'change': r.change,
-                            'flipped_frames': int((r.sign < 0).sum()), 'trial': r.trial}
+                            'flipped_frames': int((r.sign < 0).sum())}
                            for r in self.rounds]}
 
 
@@ -228,21 +228,15 @@ class PerspectiveNRSfM:
         x = validate_tracks(W, min_frames=3, min_points=4)
         F = x.shape[0] // 2
         first = solver.fit(x)
-        delta = centred_depths(first.S)
+        raw = centred_depths(first.S)
+        sign = low_rank_sign(x, raw)
+        delta = sign * raw
         rounds = [PerspectiveRound(0, perspective_residual(first.S, x, x, delta), np.nan,
-                                   np.ones(F), delta)]
+                                   np.full(F, sign), delta)]
         best = (rounds[0].residual, 0, delta, first)
         stopped = 'max_rounds' if max_rounds else 'max_rounds (0: orthographic solve only)'
         for index in range(1, max_rounds + 1):
-            if index == 1:
-                trials = [self._round(solver, x, s * delta, index) for s in (1.0, -1.0)]
-                trials.sort(key=lambda trial: (not np.isfinite(trial[0].change), trial[0].fit,
-                                               trial[0].residual))
-                trials[1][0].trial = True
-                rounds.append(trials[1][0])
-                record, new, result = trials[0]
-            else:
-                record, new, result = self._round(solver, x, delta, index)
+            record, new, result = self._round(solver, x, delta, index)
             rounds.append(record)
             if not np.isfinite(record.change):
                 stopped = 'flat depths: the solve returned no depth (round not kept)'
