@@ -13,8 +13,8 @@ reconstruct`` of the pixel tracks with ``K`` in the npz: solver parameter ``proj
 also runs on ``DRAWS`` copies of the pixel tracks perturbed by 1e-9 (relative): one run is a
 draw from a band (record 0707), so the ratio's median and range over the draws are reported
 beside it. ``python -m bench.perspective [--smoke|--full] [--seeds 6,7]``: ``--seeds`` runs
-only the faces of those seeds (the mode's size; e.g. new held-back identities, record 0716) and
-prints their rows without writing the JSON.
+only the faces of those seeds (the mode's size; e.g. the identities held back from the
+choices, records 0716, 0730) and writes them to ``bench/results/perspective_faces.json``.
 """
 import contextlib
 import io
@@ -129,7 +129,7 @@ def case(name, S, W_px, K, config=None, draws=0):
 
 def run(mode, seeds=None):
     """The mode's rows (written to the JSON); ``seeds``: only the faces of these seeds,
-    printed, nothing written."""
+    written to the suite 'perspective_faces'."""
     rows = []
     F, P = mode.pick((20, 200), (40, 400), (100, 1000))
     draws = mode.pick(1, DRAWS, DRAWS)
@@ -162,9 +162,9 @@ def run(mode, seeds=None):
               f"{row['kept']} ({row['stopped']})" + (
                   f"; over draws {np.round(row['ratio_draws'], 3).tolist()}"
                   if row.get('ratio_draws') else ''))
-    if seeds is None:
-        path = common.write_result(mode, 'perspective', {'rows': rows, 'targets': TARGETS})
-        common.log(f'wrote {path}')
+    suite = 'perspective' if seeds is None else 'perspective_faces'
+    path = common.write_result(mode, suite, {'rows': rows, 'targets': TARGETS})
+    common.log(f'wrote {path}')
     return rows
 
 

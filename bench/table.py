@@ -452,6 +452,9 @@ SECTIONS = (('accuracy', 'Accuracy', 'e3D; "A": Akhter\'s metric, the one of the
              kinect_paper_table),
             ('perspective', 'Perspective', 'The projective-depth iteration; e3D with a '
              'per-frame scale (`python -m bench.perspective`)', perspective_table),
+            ('perspective_faces', 'Perspective: other faces', 'Rendered identities and '
+             'expressions held back from the choices (records 0716, 0730), the same measures '
+             '(`python -m bench.perspective --seeds 3,4,5,6,7`)', perspective_table),
             ('missing', 'Missing data and tracker errors', 'Unseen entries and drifting '
              'tracks in the offline solver; record 0800, 0801, 0807, 0809, 0811, 0812 '
              '(`python -m bench.missing`)',
