@@ -200,11 +200,11 @@ SOLVER_PARAMS = (
           "(0726); orthographic, 'any'. Complete tracks only for 'sheet'."),
     _mode('robust', 'never', ('never', 'cauchy'),
           "'cauchy': tracks whose residual against a low-rank approximation of all tracks, "
-          "or against the combination of their nearest tracks, is far above the others' (a "
-          "tracker's drift or jumps) weighed down in the data term (Cauchy's tail beyond 3 "
-          'and 8 robust deviations), left out of the rotations and their 3D taken from their '
-          "neighbours, reported as downweighted_tracks; 'never': plain least squares "
-          '(docs/decisions/0801, 0805, 0811, 0812).'),
+          "where their neighbours' agrees, or against the combination of their nearest tracks, "
+          "is far above the others' (a tracker's drift or jumps) weighed down in the data "
+          "term (Cauchy's tail beyond 3 and 8 robust deviations), left out of the rotations "
+          'and their 3D taken from their neighbours, reported as downweighted_tracks; '
+          "'never': plain least squares (docs/decisions/0801, 0805, 0811, 0812, 0814)."),
     _number('rho', 1.2, 'Growth factor of the penalty beta per iteration: closer to 1 for a '
             'slower, more gradual schedule (more iterations).', 1.0, open_low=True),
     _number('beta0', 1e-3, 'Initial penalty beta (also of a resumed solve): lower lets the '

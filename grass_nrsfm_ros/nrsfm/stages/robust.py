@@ -2,15 +2,16 @@
 in the data term, before the rotations, so that they do not pull the shapes.
 
 Two residuals per track, each over its seen entries, each with IRLS over ROUNDS rounds
-(record 0812): against a rank-DETECT_RANK approximation of the centred tracks ``Wn: (2F,
-P)`` fitted with the track weights of the round before (a drifting track leaves the low-rank
-span of the others, which the solver's own fit, its shapes deforming per track, would absorb),
-and against the affine combination of its nearest tracks not weighed down in the round before
-(a drifting track leaves its neighbours, also where the others span more than DETECT_RANK:
-two rigid parts). Weights ``(P,)``: 1 up to ``median + THRESHOLD`` (LOCAL_THRESHOLD for the
-neighbours) robust deviations (1.4826 MAD), ``(threshold / r)^2`` above (Cauchy's tail); the
-smaller of the two. They multiply the data-term weights of the whole solve
-(:meth:`Problem.weighted`).
+(record 0812): against the affine combination of its nearest tracks not weighed down in the
+round before (a drifting track leaves its neighbours, whatever the other tracks span), and
+against a rank-DETECT_RANK approximation of the centred tracks ``Wn: (2F, P)`` fitted with the
+track weights of the round before (a drifting track leaves the low-rank span of the others,
+which the solver's own fit, its shapes deforming per track, would absorb). Weights ``(P,)``: 1
+up to ``median + LOCAL_THRESHOLD`` (THRESHOLD for the low rank) robust deviations (1.4826
+MAD), ``(threshold / r)^2`` above (Cauchy's tail); the smaller of the two, the low rank's
+only where the neighbours' residual corroborates it (above CORROBORATION deviations: a track
+that leaves the span but not its neighbours moves with the surface, record 0814). They
+multiply the data-term weights of the whole solve (:meth:`Problem.weighted`).
 The rotations are then estimated on the tracks no weight touched (:func:`kept_tracks`, read by
 :func:`.rotations.core_tracks`, record 0805): Dai's factorisation reads every track it is given,
 and a drifting one moves its rank-3K span.
@@ -36,10 +37,13 @@ THRESHOLD = 3.0
 #: robust deviations above the median residual to the neighbours from which a track is weighed
 #: down (record 0812)
 LOCAL_THRESHOLD = 8.0
+#: robust deviations above the median residual to the neighbours from which the low-rank
+#: residual's weight applies (record 0814)
+CORROBORATION = 5.0
 #: no track is weighed down below this residual (units of the centred, unit-RMS tracks ``Wn``:
-#: about 0.1 px where the surface spans 200 px): noise-free input's rounding and the neighbours'
-#: regularisation, not drift (record 0812)
-RESIDUAL_FLOOR = 1e-3
+#: about 1 px where the surface spans 200 px): noise-free input's rounding, the neighbours'
+#: regularisation and a dense surface's fine detail, not drift (records 0812, 0814)
+RESIDUAL_FLOOR = 1e-2
 #: the rotations read the kept tracks only while they are at least this share of all
 KEPT_SHARE = 0.5
 #: a weighed-down track's frame is trusted while its residual to its neighbours' combination is
@@ -95,21 +99,29 @@ def local_residuals(Wn, candidates, seen, embedding):
     return out
 
 
-def cauchy_weights(r, threshold=THRESHOLD, reference=None):
-    """Weights ``(P,)`` of the residuals ``r: (P,)``: 1 up to ``threshold`` robust deviations
-    above the median (both of ``r[reference]``, ``reference: (P,) bool``; None: all), and up
-    to RESIDUAL_FLOOR at least, then ``(limit / r)^2``."""
+def limit(r, threshold, reference=None):
+    """The residual above which ``r: (P,)`` is an outlier: ``threshold`` robust deviations
+    above the median (both of ``r[reference]``, ``reference: (P,) bool``; None: all), and
+    RESIDUAL_FLOOR at least."""
     base = r if reference is None else r[reference]
     median = np.median(base)
     deviation = 1.4826 * np.median(np.abs(base - median))
-    limit = max(median + threshold * deviation, RESIDUAL_FLOOR)
-    return np.where(r > limit, (limit / np.maximum(r, limit)) ** 2, 1.0)
+    return max(median + threshold * deviation, RESIDUAL_FLOOR)
+
+
+def cauchy_weights(r, threshold=THRESHOLD, reference=None):
+    """Weights ``(P,)`` of the residuals ``r: (P,)``: 1 up to :func:`limit`, then ``(limit /
+    r)^2``."""
+    top = limit(r, threshold, reference)
+    return np.where(r > top, (top / np.maximum(r, top)) ** 2, 1.0)
 
 
 def track_weights(problem):
-    """``(P,)`` weights of the tracks of ``problem``: the smaller of :func:`low_rank_weights`
-    and :func:`neighbour_weights`."""
-    return np.minimum(low_rank_weights(problem), neighbour_weights(problem))
+    """``(P,)`` weights of the tracks of ``problem``: the smaller of :func:`neighbour_weights`
+    and, where the neighbours' residual is above CORROBORATION deviations, of
+    :func:`low_rank_weights`."""
+    weights, corroborated = neighbour_weights(problem)
+    return np.minimum(weights, np.where(corroborated, low_rank_weights(problem), 1.0))
 
 
 def low_rank_weights(problem):
@@ -122,16 +134,17 @@ def low_rank_weights(problem):
 
 
 def neighbour_weights(problem):
-    """``(P,)`` weights of the tracks of ``problem`` by IRLS on :func:`local_residuals` (the
-    candidate neighbours and the median's reference: the tracks the round before left at
-    1)."""
+    """``(weights: (P,), corroborated: (P,) bool)`` of the tracks of ``problem`` by IRLS on
+    :func:`local_residuals` (the candidate neighbours and the median's reference: the tracks
+    the round before left at 1); ``corroborated``: the last round's residual above
+    CORROBORATION deviations."""
     seen, embedding = _seen(problem), trajectory_embedding(problem.Wn)
     weights = np.ones(problem.P)
     for _ in range(ROUNDS):
         kept = weights >= 1.0
-        weights = cauchy_weights(local_residuals(problem.Wn, kept, seen, embedding),
-                                 LOCAL_THRESHOLD, kept)
-    return weights
+        r = local_residuals(problem.Wn, kept, seen, embedding)
+        weights = cauchy_weights(r, LOCAL_THRESHOLD, kept)
+    return weights, r > limit(r, CORROBORATION, kept)
 
 
 def _seen(problem):
