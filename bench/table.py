@@ -456,8 +456,8 @@ SECTIONS = (('accuracy', 'Accuracy', 'e3D; "A": Akhter\'s metric, the one of the
              'expressions held back from the choices (records 0716, 0730), the same measures '
              '(`python -m bench.perspective --seeds 3,4,5,6,7`)', perspective_table),
             ('missing', 'Missing data and tracker errors', 'Unseen entries and drifting '
-             'tracks in the offline solver; record 0800, 0801, 0807, 0809, 0811, 0812 '
-             '(`python -m bench.missing`)',
+             'tracks in the offline solver; record 0800, 0801, 0807, 0809, 0811, 0812, '
+             '0814 (`python -m bench.missing`)',
              missing_table),
             ('sheets', 'Sheets', 'e3D and its ratio to rigid factorisation per option '
              '(`python -m bench.sheets`)', sheets_table),
