@@ -121,6 +121,8 @@ def track_weights(problem):
     and, where the neighbours' residual is above CORROBORATION deviations, of
     :func:`low_rank_weights`."""
     weights, corroborated = neighbour_weights(problem)
+    if not corroborated.any():
+        return weights
     return np.minimum(weights, np.where(corroborated, low_rank_weights(problem), 1.0))
 
 
@@ -144,6 +146,8 @@ def neighbour_weights(problem):
         kept = weights >= 1.0
         r = local_residuals(problem.Wn, kept, seen, embedding)
         weights = cauchy_weights(r, LOCAL_THRESHOLD, kept)
+        if np.array_equal(weights >= 1.0, kept):        # the next round would repeat this one
+            break
     return weights, r > limit(r, CORROBORATION, kept)
 
 
