@@ -72,6 +72,13 @@ def sheet_shapes(kind, F, P, seed, distance):
                       distance)
 
 
+def pinhole_sheet(kind, F, P, seed=0, distance=5.0):
+    """``(W: (2F, P), S: (3F, P))``: normalised pinhole tracks and camera-frame truth of
+    :func:`sheet_shapes`."""
+    S = sheet_shapes(kind, F, P, seed, distance)
+    return camera.project(S), S
+
+
 def rounding_draw(W, draw):
     """``W`` perturbed by 1e-9 (relative, seeded by ``draw``): one draw of its rounding."""
     return W * (1 + 1e-9 * np.random.default_rng(draw).standard_normal(W.shape))

@@ -56,7 +56,7 @@ from grass_nrsfm_ros.nrsfm.perspective import PerspectiveNRSfM
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
 from grass_nrsfm_ros.nrsfm.solver import GrassmannNRSfM
 from . import common
-from .perspective import sheet_shapes
+from .perspective import pinhole_sheet
 
 BAR = 0.6
 #: the synthetic and rendered sheets' kinds (:mod:`grass_nrsfm_ros.nrsfm.synthetic`)
@@ -95,8 +95,7 @@ def sequences(mode, kinds=KINDS, real=True):
                     seq = synthetic.make_sequence(kind, n_frames=F, n_points=P, seed=seed)
                     W, S = seq.W, seq.S
                 else:
-                    S = sheet_shapes(kind, F, P, seed, DISTANCE)
-                    W = camera.project(S)
+                    W, S = pinhole_sheet(kind, F, P, seed, DISTANCE)
                 yield f'synthetic_{kind}_seed{seed}', projection, W, S
                 W, S = rendered_sheet(kind, F, P, seed)
                 if projection == 'pinhole':

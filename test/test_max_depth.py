@@ -3,7 +3,7 @@ bench/sheets.py (column max_depth), docs/decisions/0709."""
 import numpy as np
 import pytest
 
-from bench.perspective import sheet_shapes
+from bench.perspective import pinhole_sheet
 from grass_nrsfm_ros.nrsfm import camera, max_depth, metrics
 from grass_nrsfm_ros.nrsfm.measurement import InvalidInputError
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
@@ -11,15 +11,8 @@ from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
 BAR = 0.6       # issue 37: a sheet's e3D at most 0.6 of rigid factorisation's
 
 
-def pinhole_bending(F=10, P=80, seed=0, distance=5.0):
-    """``(W, S)``: normalised tracks and camera-frame truth of the synthetic bending sheet
-    (size about 2) ``distance`` along the optical axis."""
-    S = sheet_shapes('bending', F, P, seed, distance)
-    return camera.project(S), S
-
-
 def test_cones_hold_and_lengths_are_normalised():
-    W, _ = pinhole_bending(F=4, P=40)
+    W, _ = pinhole_sheet('bending', 4, 40)
     i, j = max_depth.neighbour_edges(W, 6)
     Z, d, info = max_depth.max_depth(W, (i, j))
     q = max_depth._rays(W)
@@ -31,7 +24,7 @@ def test_cones_hold_and_lengths_are_normalised():
 
 
 def test_shapes_project_onto_the_tracks():
-    W, _ = pinhole_bending(F=4, P=40)
+    W, _ = pinhole_sheet('bending', 4, 40)
     result = max_depth.MaxDepthNRSfM(max_tracks=30).fit(W)
     np.testing.assert_allclose(camera.project(result.S), W, atol=1e-12)
     assert result.anchors.size == 30 and result.Z.mean() == pytest.approx(1.0)
@@ -40,7 +33,7 @@ def test_shapes_project_onto_the_tracks():
 def test_pinhole_bending_sheet_beats_rigid_by_the_bar():
     """Without it (the perspective iteration around the default chain) this sheet is 0.90 of
     rigid (seeds 1, 2: 1.45, 1.21); the maximum depth gives 0.40 (0.28, 0.27)."""
-    W, S = pinhole_bending()
+    W, S = pinhole_sheet('bending', 10, 80)
     rigid = metrics.e3d(rigid_factorisation(W)[1], S, scale=True)
     ours = metrics.e3d(max_depth.MaxDepthNRSfM().fit(W).S, S, scale=True)
     assert ours <= BAR * rigid
@@ -50,7 +43,7 @@ def test_anchors_leave_out_drifting_tracks():
     """15 of 300 tracks drift (a random walk from frame 0, up to about 26 px at f = 620): none
     of them is an anchor (farthest-point sampling over all tracks picked 6 of 60) and the
     clean tracks stay within the bar (0.27 of rigid; 0.29 with those anchors)."""
-    W, S = pinhole_bending(P=300)
+    W, S = pinhole_sheet('bending', 10, 300)
     rng = np.random.default_rng(0)
     drifting = rng.choice(300, 15, replace=False)
     W[:, drifting] += np.cumsum(0.004 * rng.standard_normal((10, 2, 15)), axis=0).reshape(20, 15)
@@ -68,7 +61,7 @@ def test_long_sequences_take_their_lengths_from_key_frames():
     """12 frames, lengths from 4 of them (0, 4, 7, 11): the key frames are the LP on them
     alone, every other frame's depths meet those lengths, the output still projects onto the
     tracks and beats rigid by the bar."""
-    W, S = pinhole_bending(F=12, P=80)
+    W, S = pinhole_sheet('bending', 12, 80)
     result = max_depth.MaxDepthNRSfM(max_tracks=40, key_frames=4, refine=False).fit(W)
     assert result.info['key_frames'] == 4
     np.testing.assert_allclose(camera.project(result.S), W, atol=1e-12)
@@ -86,7 +79,7 @@ def test_long_sequences_take_their_lengths_from_key_frames():
 
 
 def test_given_lengths_solve_one_frame():
-    W, _ = pinhole_bending(F=4, P=40)
+    W, _ = pinhole_sheet('bending', 4, 40)
     edges = max_depth.neighbour_edges(W, 6)
     Z, d, _ = max_depth.max_depth(W, edges)
     Z1, d1, _ = max_depth.max_depth(W[6:8], edges, lengths=d)
@@ -101,7 +94,7 @@ def test_real_subsets_meet_their_bars(dataset, name, bar):
 
 
 def test_incomplete_tracks_are_refused():
-    W, _ = pinhole_bending(F=4, P=40)
+    W, _ = pinhole_sheet('bending', 4, 40)
     W[3, 5] = np.nan
     with pytest.raises(InvalidInputError, match='non-finite'):
         max_depth.MaxDepthNRSfM().fit(W)
@@ -110,7 +103,7 @@ def test_incomplete_tracks_are_refused():
 @pytest.mark.parametrize('params', [{'neighbours': 1}, {'max_tracks': 2.5}, {'tol': 0},
                                     {'key_frames': 1}])
 def test_bad_parameters_are_refused(params):
-    W, _ = pinhole_bending(F=4, P=40)
+    W, _ = pinhole_sheet('bending', 4, 40)
     with pytest.raises(InvalidInputError, match=next(iter(params))):
         max_depth.MaxDepthNRSfM(**params).fit(W)
 
@@ -120,7 +113,7 @@ def test_the_solver_runs_it_for_a_sheet_through_a_pinhole():
     projecting onto the tracks, within the bar of rigid; the report says so. Orthographic
     tracks go to the orthographic sheet prior; unseen entries are refused (record 0440)."""
     from grass_nrsfm_ros.nrsfm import GrassmannNRSfM
-    W, S = pinhole_bending()
+    W, S = pinhole_sheet('bending', 10, 80)
     result = GrassmannNRSfM(projection='perspective', surface='sheet').fit(W)
     np.testing.assert_allclose(camera.project(result.S), W, atol=1e-12)
     rigid = metrics.e3d(rigid_factorisation(W)[1], S, scale=True)

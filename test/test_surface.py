@@ -4,24 +4,17 @@ own model (record 0726)."""
 import numpy as np
 import pytest
 
-from bench.perspective import sheet_shapes
+from bench.perspective import pinhole_sheet
 from grass_nrsfm_ros.nrsfm import camera, GrassmannNRSfM, metrics
 from grass_nrsfm_ros.nrsfm.problem import WarmStart
 from grass_nrsfm_ros.nrsfm.stages import surface
-
-
-def pinhole_sequence(kind, F=12, P=150, seed=0, distance=5.0):
-    """``(W, S)``: normalised tracks and camera-frame truth of a synthetic surface (size about
-    2) ``distance`` along the optical axis."""
-    S = sheet_shapes(kind, F, P, seed, distance)
-    return camera.project(S), S
 
 
 def test_a_bending_sheet_is_a_sheet_and_gets_the_sheets_reconstruction():
     """The isometric bending sheet: the check's edge lengths hold (about 0.01), so 'auto' gives
     exactly the maximum-depth reconstruction of surface='sheet' (the check's own, reused when it
     ran on every frame), far better than the low-rank chain."""
-    W, S = pinhole_sequence('bending', F=10, P=120)
+    W, S = pinhole_sheet('bending', 10, 120)
     auto = GrassmannNRSfM(projection='perspective').fit(W)
     sheet = GrassmannNRSfM(projection='perspective', surface='sheet').fit(W)
     assert auto.report.stages == ['surface', 'max_depth']
@@ -35,7 +28,7 @@ def test_a_bending_sheet_is_a_sheet_and_gets_the_sheets_reconstruction():
 def test_surfaces_that_stretch_get_the_low_rank_chain(kind):
     """Waving (edges 0.69-1.29 of their length) and inflating surfaces stretch: the heuristic's
     depths cannot keep their edge lengths (variation 0.04-0.09), so 'auto' is the chain."""
-    W, _ = pinhole_sequence(kind)
+    W, _ = pinhole_sheet(kind, 12, 150)
     decided = surface.check(W)
     assert not decided.sheet and decided.variation > 1.4 * surface.SHEET_VARIATION, decided
     auto = GrassmannNRSfM(projection='perspective').fit(W)
@@ -62,7 +55,7 @@ def test_a_rendered_face_is_not_a_sheet():
 def test_no_decision_without_a_pinhole_a_cold_start_or_enough_tracks():
     """Orthographic tracks, a warm start, fewer than MIN_POINTS tracks or surface='any': no
     check is made."""
-    W, _ = pinhole_sequence('bending', F=10, P=120)
+    W, _ = pinhole_sheet('bending', 10, 120)
     assert 'surface' not in GrassmannNRSfM().fit(W).report.stages
     assert 'surface' not in GrassmannNRSfM(projection='perspective', surface='any').fit(
         W).report.stages
