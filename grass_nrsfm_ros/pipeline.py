@@ -234,8 +234,9 @@ def make_pipeline(config, solver_factory=None, *, mapping='inline', notify=None,
     none (:meth:`LivePipeline.set_camera` sets them later). The windows are solved with the
     solver's ``projection``: 'auto' solves orthographically (on the normalised points with
     ``K``; the depth correction through the pinhole applies to every frame); 'perspective'
-    runs the projective-depth iteration in every window (docs/decisions/0703)."""
-    config = {**params.defaults(), **config}
+    runs the projective-depth iteration in every window (docs/decisions/0703). An unknown
+    parameter or a bad value raises ValueError (:func:`~grass_nrsfm_ros.params.validate`)."""
+    config = params.validate({**params.defaults(), **config})
     if camera is None and config['camera']:
         camera = params.camera_matrix(config['camera'])
     if mapping == 'process':

@@ -211,3 +211,14 @@ def test_frames_carry_the_depth_they_were_published_with():
     # the first model keeps that orientation: the refined depth agrees with the published
     refined = {r.stamp_ns: r for r in updates[0].results}
     assert sum(np.dot(refined[s].xyz[:, 2], points[s].xyz[:, 2]) for s in carried) > 0
+
+
+def test_an_unknown_or_bad_parameter_is_refused_by_name():
+    """make_pipeline checks its config against the schema: a solver parameter without its
+    'solver.' prefix was silently ignored before (the windows solved with the default)."""
+    with pytest.raises(ValueError, match="unknown parameter 'robust'; did you mean "
+                                         "'solver.robust'"):
+        make_pipeline({'robust': 'cauchy'})
+    with pytest.raises(ValueError, match='window_size'):
+        make_pipeline({'window_size': -3})
+    assert make_pipeline({'solver.robust': 'cauchy'}) is not None
