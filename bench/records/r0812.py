@@ -9,46 +9,29 @@ found / clean tracks weighed down, with the rank-6 residual alone (record 0801) 
 20 px, the drift's generator seeded seed + 200); ``--clean``: the clean tracks instead (what
 'cauchy' does where nothing drifts).
 """
-import argparse
 import sys
 
 import numpy as np
 
-from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM, synthetic
+from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM
 from grass_nrsfm_ros.nrsfm.stages import robust
 from . import r0814
-
-KINDS = 'bending,waving,inflating,twisting,articulated'
 
 
 def cauchy_figures(W, S, drifting, clean, weights_of):
     """``(e3D / clean, found, clean tracks touched)`` of a 'cauchy' solve of ``W`` whose stage
     weighs the tracks with ``weights_of``."""
-    shipped = robust.track_weights
-    robust.track_weights = weights_of
-    try:
-        result = GrassmannNRSfM(robust='cauchy').fit(W)
-    finally:
-        robust.track_weights = shipped
-    down = np.zeros(W.shape[1], dtype=bool)
-    down[result.report.downweighted_tracks] = True
-    return e3d(result.S, S) / clean, int((down & drifting).sum()), int((down & ~drifting).sum())
+    shapes, down = r0814.cauchy(W, weights_of)
+    return e3d(shapes, S) / clean, int((down & drifting).sum()), int((down & ~drifting).sum())
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
-    parser.add_argument('--seeds', default='3,4,5,6,7')
-    parser.add_argument('--kinds', default=KINDS)
-    parser.add_argument('--clean', action='store_true')
-    args = parser.parse_args(argv)
+    args = r0814.parse(argv, __doc__)
     print('| kind | seed | rank 6 alone: ratio (found / clean touched) | both |')
     print('| --- | --- | --- | --- |')
     for kind in args.kinds.split(','):
         for seed in (int(s) for s in args.seeds.split(',')):
-            seq = synthetic.make_sequence(kind, n_frames=60, n_points=400, noise=0.005,
-                                          seed=seed)
-            W, drifting = synthetic.drifting_tracks(seq.W, 0.05, 20.0,
-                                                    np.random.default_rng(seed + 200))
+            seq, W, drifting = r0814.drift_case(kind, seed)
             if args.clean:
                 W, drifting = seq.W, np.zeros(seq.W.shape[1], dtype=bool)
             clean = e3d(GrassmannNRSfM().fit(seq.W).S, seq.S)

@@ -66,12 +66,25 @@ def row(name, W, S, reference, drifting=None):
     print(f'| {name} | ' + ' | '.join(cells) + ' |', flush=True)
 
 
-def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+def parse(argv, doc):
+    """The drift records' arguments (0812, 0814): ``--seeds``, ``--kinds``, ``--clean``."""
+    parser = argparse.ArgumentParser(description=doc.split('\n')[0])
     parser.add_argument('--seeds', default='3,4,5,6,7')
     parser.add_argument('--kinds', default=KINDS)
     parser.add_argument('--clean', action='store_true')
-    args = parser.parse_args(argv)
+    return parser.parse_args(argv)
+
+
+def drift_case(kind, seed):
+    """``(seq, W: (2F, P), drifting: (P,) bool)``: ``bench.missing``'s drift row of ``kind``
+    and ``seed`` (60 x 400, 1 px noise, 5 % of the tracks drifting up to 20 px)."""
+    seq = synthetic.make_sequence(kind, n_frames=60, n_points=400, noise=0.005, seed=seed)
+    W, drifting = synthetic.drifting_tracks(seq.W, 0.05, 20.0, np.random.default_rng(seed + 200))
+    return seq, W, drifting
+
+
+def main(argv=None):
+    args = parse(argv, __doc__)
     seeds = [int(s) for s in args.seeds.split(',')]
     print('| case | before (record 0812) | now |')
     print('| --- | --- | --- |')
@@ -88,10 +101,7 @@ def main(argv=None):
         return 0
     for kind in args.kinds.split(','):
         for seed in seeds:
-            seq = synthetic.make_sequence(kind, n_frames=60, n_points=400, noise=0.005,
-                                          seed=seed)
-            W, drifting = synthetic.drifting_tracks(seq.W, 0.05, 20.0,
-                                                    np.random.default_rng(seed + 200))
+            seq, W, drifting = drift_case(kind, seed)
             row(f'{kind} {seed}', W, seq.S, e3d(GrassmannNRSfM().fit(seq.W).S, seq.S), drifting)
     return 0
 
