@@ -78,7 +78,7 @@ def local_residuals(Wn, candidates, seen, embedding):
     """Per-track RMS residual ``(P,)`` of ``Wn: (2F, P)`` over its ``seen: (2F, P)`` entries
     against the affine combination (:func:`.density.affine_weights`) of its FILL_NEIGHBOURS
     nearest ``candidates: (P,) bool`` in ``embedding: (P, n)``, itself excluded, that
-    reproduces it best; zeros where fewer than 3 candidates are left."""
+    reproduces it best there (record 0814); zeros where fewer than 3 candidates are left."""
     P = Wn.shape[1]
     pool = np.flatnonzero(candidates)
     k = min(FILL_NEIGHBOURS, pool.size - 1)
@@ -92,7 +92,8 @@ def local_residuals(Wn, candidates, seen, embedding):
     step = max(1, CHUNK // (Wn.shape[0] * k))
     for a in range(0, P, step):
         part = slice(a, a + step)
-        diff = X[nbrs[part]] - X[part, None, :]                               # (p, k, 2F)
+        # (p, k, 2F) on the track's seen entries only: its unseen ones are the completion's
+        diff = (X[nbrs[part]] - X[part, None, :]) * seen_rows[part, None, :]
         resid = np.einsum('pk,pkn->pn', affine_weights(diff), diff)          # combination - x
         out[part] = np.sqrt((seen_rows[part] * resid ** 2).sum(axis=1)
                             / np.maximum(seen_rows[part].sum(axis=1), 1))
