@@ -149,8 +149,9 @@ def _accepts(fit, name):
 def make_mapper(config, solver_factory=None, refined_after=None):
     """The Mapper that ``config`` (parameters as from :func:`grass_nrsfm_ros.params.load_config`
     or the node; absent keys take their defaults) describes; ``solver_factory`` replaces
-    ``GrassmannNRSfM(**solver parameters)``; ``refined_after``: see :class:`Mapper`."""
-    config = {**params.defaults(), **config}
+    ``GrassmannNRSfM(**solver parameters)``; ``refined_after``: see :class:`Mapper`. An unknown
+    parameter or a bad value raises ValueError."""
+    config = params.with_defaults(config)
     solver_kwargs = params.solver_kwargs(config)
     factory = solver_factory or (lambda: GrassmannNRSfM(**solver_kwargs))
     return Mapper(factory, refined_after=refined_after or refined_after_of(config),

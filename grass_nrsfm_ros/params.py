@@ -217,12 +217,19 @@ def validate(values):
     for name, value in values.items():
         if name not in specs:
             close = difflib.get_close_matches(name, specs, n=1)
+            if SOLVER_PREFIX + name in specs:                   # a solver's, without its prefix
+                close = [SOLVER_PREFIX + name]
             hint = f'; did you mean {close[0]!r}?' if close else ''
             raise ValueError(f'unknown parameter {name!r}{hint}')
         out[name] = check_camera(value) if name == 'camera' else specs[name].check(value)
     _check_stride(out)
     validate_solver(solver_kwargs(out))
     return out
+
+
+def with_defaults(config):
+    """Every parameter's value: ``config`` over the defaults, checked (:func:`validate`)."""
+    return validate({**defaults(), **config})
 
 
 def check_window(**values):
@@ -249,7 +256,7 @@ def load_config(path):
         raise ValueError(f'{path}: expected a mapping of parameters, got {type(data).__name__}')
     try:
         values = validate(_flatten(_node_section(data, path)))
-        return validate({**defaults(), **values})
+        return with_defaults(values)
     except ValueError as exc:
         raise ValueError(f'{path}: {exc}') from None
 

@@ -235,8 +235,8 @@ def make_pipeline(config, solver_factory=None, *, mapping='inline', notify=None,
     solver's ``projection``: 'auto' solves orthographically (on the normalised points with
     ``K``; the depth correction through the pinhole applies to every frame); 'perspective'
     runs the projective-depth iteration in every window (docs/decisions/0703). An unknown
-    parameter or a bad value raises ValueError (:func:`~grass_nrsfm_ros.params.validate`)."""
-    config = params.validate({**params.defaults(), **config})
+    parameter or a bad value raises ValueError (:func:`~grass_nrsfm_ros.params.with_defaults`)."""
+    config = params.with_defaults(config)
     if camera is None and config['camera']:
         camera = params.camera_matrix(config['camera'])
     if mapping == 'process':

@@ -217,11 +217,15 @@ def test_frames_carry_the_depth_they_were_published_with():
 
 
 def test_an_unknown_or_bad_parameter_is_refused_by_name():
-    """make_pipeline checks its config against the schema: a solver parameter without its
-    'solver.' prefix was silently ignored before (the windows solved with the default)."""
+    """make_pipeline and make_mapper check their config against the schema: a solver parameter
+    without its 'solver.' prefix was silently ignored before (the windows solved with the
+    default); the hint names the prefixed parameter."""
     with pytest.raises(ValueError, match="unknown parameter 'robust'; did you mean "
                                          "'solver.robust'"):
         make_pipeline({'robust': 'cauchy'})
     with pytest.raises(ValueError, match='window_size'):
         make_pipeline({'window_size': -3})
+    with pytest.raises(ValueError, match="unknown parameter 'gamma'; did you mean "
+                                         "'solver.gamma'"):
+        make_mapper({'gamma': 1e-3})
     assert make_pipeline({'solver.robust': 'cauchy'}) is not None
