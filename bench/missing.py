@@ -153,9 +153,16 @@ def occlusion_row(kind, seed, F, P):
             'completion': masked.report.completion}
 
 
-def drift_row(kind, seed, F, P):
+def drift_case(kind, seed, F=60, P=400):
+    """``(seq, W: (2F, P), drifting: (P,) bool)``: a drift row's clean sequence (1 px noise)
+    and its tracks with 5 % drifting up to 20 px (the drift's generator seeded seed + 200)."""
     seq = synthetic.make_sequence(kind, n_frames=F, n_points=P, noise=NOISE, seed=seed)
     W, drifting = synthetic.drifting_tracks(seq.W, 0.05, 20.0, np.random.default_rng(seed + 200))
+    return seq, W, drifting
+
+
+def drift_row(kind, seed, F, P):
+    seq, W, drifting = drift_case(kind, seed, F, P)
     common.log(f'missing: drift {kind} seed {seed}')
     clean = e3d(solve(seq.W)[0].S, seq.S)
     true = WarmStart(R=seq.R)

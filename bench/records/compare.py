@@ -7,6 +7,7 @@ prints e3D (:func:`~grass_nrsfm_ros.nrsfm.metrics.e3d`, or Akhter's metric for m
 its e3D ratio to the first setting's.
 """
 import argparse
+from contextlib import contextmanager
 import time
 
 import numpy as np
@@ -15,6 +16,17 @@ from grass_nrsfm_ros.nrsfm import GrassmannNRSfM
 from grass_nrsfm_ros.nrsfm.metrics import e3d, e3d_akhter
 from grass_nrsfm_ros.nrsfm.synthetic import make_sequence
 from .. import common
+
+
+@contextmanager
+def patched(module, name, value):
+    """``module.name`` set to ``value`` inside the block, restored after."""
+    old = getattr(module, name)
+    setattr(module, name, value)
+    try:
+        yield
+    finally:
+        setattr(module, name, old)
 
 
 def parse(argv, doc):

@@ -22,7 +22,6 @@ to the detector's fit).
     python -m bench.records.r0805 --clean         # 'cauchy' on clean tracks and the back
 """
 import argparse
-from contextlib import contextmanager
 from dataclasses import replace
 import sys
 import time
@@ -33,29 +32,13 @@ from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM, synthetic
 from grass_nrsfm_ros.nrsfm.measurement import economy_svd
 from grass_nrsfm_ros.nrsfm.missing import complete
 from grass_nrsfm_ros.nrsfm.stages import robust, rotations
+from . import compare
+from ..missing import drift_case
 
-NOISE = 0.005
 SHIPPED_CORE = rotations.core_tracks
 SHIPPED_ROBUST = robust.run
 DEFAULT_VARIANTS = ('none/all', 'none/oracle', 'oracle/oracle', 'cauchy/all', 'cauchy/kept',
                     'trim/kept', 'entry/kept', 'cauchy/q75', 'none/q75')
-
-
-@contextmanager
-def patched(module, name, value):
-    old = getattr(module, name)
-    setattr(module, name, value)
-    try:
-        yield
-    finally:
-        setattr(module, name, old)
-
-
-def case(kind, seed, F=60, P=400):
-    """``(seq, W_drift, drifting: (P,))`` as bench.missing's drift rows."""
-    seq = synthetic.make_sequence(kind, n_frames=F, n_points=P, noise=NOISE, seed=seed)
-    W, drifting = synthetic.drifting_tracks(seq.W, 0.05, 20.0, np.random.default_rng(seed + 200))
-    return seq, W, drifting
 
 
 # ------------------------------------------------------------------------------- rotations
@@ -158,13 +141,13 @@ def solve(W, variant, drifting):
              'oracle': core_oracle(drifting), 'q75': core_quantile(0.75),
              'q50': core_quantile(0.5)}
     params = {} if mode == 'none' else {'robust': 'cauchy'}
-    with patched(rotations, 'core_tracks', cores[core]), \
-            patched(robust, 'run', robust_variant(mode, drifting)):
+    with compare.patched(rotations, 'core_tracks', cores[core]), \
+            compare.patched(robust, 'run', robust_variant(mode, drifting)):
         return GrassmannNRSfM(**params).fit(W)
 
 
 def row(kind, seed, variants):
-    seq, W, drifting = case(kind, seed)
+    seq, W, drifting = drift_case(kind, seed)
     ORACLE_TRUTH[:] = [seq.W, synthetic.image_pixel(seq.W)]
     clean = GrassmannNRSfM().fit(seq.W)
     base = e3d(clean.S, seq.S)
@@ -226,7 +209,7 @@ def detect(kinds, seeds):
               ('rms', (3, 6, 9), 'trim')]
     for kind in kinds:
         for seed in seeds:
-            seq, W, drifting = case(kind, seed)
+            seq, W, drifting = drift_case(kind, seed)
             Wn = W - W.mean(axis=1, keepdims=True)
             Wn /= np.sqrt(np.mean(Wn ** 2))
             cells = []
@@ -248,7 +231,7 @@ def clean_rows(kinds, seeds):
     from bench.missing import BACK_MIN_DEPTH
     for kind in kinds:
         for seed in seeds:
-            seq = synthetic.make_sequence(kind, n_frames=60, n_points=400, noise=NOISE, seed=seed)
+            seq = drift_case(kind, seed)[0]
             plain = e3d(GrassmannNRSfM().fit(seq.W).S, seq.S)
             res = GrassmannNRSfM(robust='cauchy').fit(seq.W)
             print(f'clean {kind} s{seed}: {plain:.4f}, cauchy {e3d(res.S, seq.S) / plain:.3f} '
@@ -258,7 +241,7 @@ def clean_rows(kinds, seeds):
             seq = synthetic.make_sequence(kind, 60, 500, camera=camera, seed=0)
             plain = e3d(GrassmannNRSfM().fit(seq.W).S, seq.S)
             res = GrassmannNRSfM(robust='cauchy').fit(seq.W)
-            with patched(rotations, 'core_tracks', core_all):
+            with compare.patched(rotations, 'core_tracks', core_all):
                 old = e3d(GrassmannNRSfM(robust='cauchy').fit(seq.W).S, seq.S)
             print(f'accuracy {kind} {camera}: {plain:.4f}, cauchy {e3d(res.S, seq.S):.4f} '
                   f'(rotations on all {old:.4f}; {len(res.report.downweighted_tracks)} touched)',

@@ -15,8 +15,9 @@ import numpy as np
 
 from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM, synthetic
 from grass_nrsfm_ros.nrsfm.stages import robust
+from . import compare
+from ..missing import drift_case
 
-NOISE = 0.005
 SHIPPED = robust.refit
 
 
@@ -28,17 +29,13 @@ def cauchy(W):
         seen['S'] = S
         return SHIPPED(S, *args, **kwargs)
 
-    robust.refit = spy
-    try:
+    with compare.patched(robust, 'refit', spy):
         result = GrassmannNRSfM(robust='cauchy').fit(W)
-    finally:
-        robust.refit = SHIPPED
     return result, seen.get('S', result.S)
 
 
 def row(kind, seed, clean_only):
-    seq = synthetic.make_sequence(kind, n_frames=60, n_points=400, noise=NOISE, seed=seed)
-    W, drifting = synthetic.drifting_tracks(seq.W, 0.05, 20.0, np.random.default_rng(seed + 200))
+    seq, W, drifting = drift_case(kind, seed)
     base = GrassmannNRSfM().fit(seq.W).S
     clean = e3d(base, seq.S)
     if clean_only:

@@ -16,6 +16,7 @@ import numpy as np
 from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM
 from grass_nrsfm_ros.nrsfm.stages import robust
 from . import r0814
+from ..missing import drift_case
 
 
 def cauchy_figures(W, S, drifting, clean, weights_of):
@@ -31,7 +32,7 @@ def main(argv=None):
     print('| --- | --- | --- | --- |')
     for kind in args.kinds.split(','):
         for seed in (int(s) for s in args.seeds.split(',')):
-            seq, W, drifting = r0814.drift_case(kind, seed)
+            seq, W, drifting = drift_case(kind, seed)
             if args.clean:
                 W, drifting = seq.W, np.zeros(seq.W.shape[1], dtype=bool)
             clean = e3d(GrassmannNRSfM().fit(seq.W).S, seq.S)

@@ -18,6 +18,7 @@ import numpy as np
 from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM, synthetic
 from grass_nrsfm_ros.nrsfm.stages import robust
 from . import compare
+from ..missing import drift_case
 
 KINDS = 'bending,waving,inflating,twisting,articulated'
 MOCAP = ('drink', 'pickup', 'yoga', 'dance', 'face', 'shark')
@@ -26,12 +27,8 @@ MOCAP = ('drink', 'pickup', 'yoga', 'dance', 'face', 'shark')
 def at_old_floor(weights_of):
     """``weights_of(problem)`` under record 0812's RESIDUAL_FLOOR (1e-3)."""
     def weights(problem):
-        shipped = robust.RESIDUAL_FLOOR
-        robust.RESIDUAL_FLOOR = 1e-3
-        try:
+        with compare.patched(robust, 'RESIDUAL_FLOOR', 1e-3):
             return weights_of(problem)
-        finally:
-            robust.RESIDUAL_FLOOR = shipped
     return weights
 
 
@@ -43,12 +40,8 @@ before = at_old_floor(lambda problem: np.minimum(robust.low_rank_weights(problem
 def cauchy(W, weights_of):
     """A 'cauchy' solve of ``W`` whose stage weighs the tracks with ``weights_of``: ``(S,
     down: (P,) bool)``."""
-    shipped = robust.track_weights
-    robust.track_weights = weights_of
-    try:
+    with compare.patched(robust, 'track_weights', weights_of):
         result = GrassmannNRSfM(robust='cauchy').fit(W)
-    finally:
-        robust.track_weights = shipped
     down = np.zeros(W.shape[1], dtype=bool)
     down[result.report.downweighted_tracks] = True
     return result.S, down
@@ -75,14 +68,6 @@ def parse(argv, doc):
     return parser.parse_args(argv)
 
 
-def drift_case(kind, seed):
-    """``(seq, W: (2F, P), drifting: (P,) bool)``: ``bench.missing``'s drift row of ``kind``
-    and ``seed`` (60 x 400, 1 px noise, 5 % of the tracks drifting up to 20 px)."""
-    seq = synthetic.make_sequence(kind, n_frames=60, n_points=400, noise=0.005, seed=seed)
-    W, drifting = synthetic.drifting_tracks(seq.W, 0.05, 20.0, np.random.default_rng(seed + 200))
-    return seq, W, drifting
-
-
 def main(argv=None):
     args = parse(argv, __doc__)
     seeds = [int(s) for s in args.seeds.split(',')]
@@ -93,8 +78,7 @@ def main(argv=None):
                  + compare.synthetic_cases(synthetic.kinds(), seeds=(2,)))
         for kind in args.kinds.split(','):
             for seed in seeds:
-                seq = synthetic.make_sequence(kind, n_frames=60, n_points=400, noise=0.005,
-                                              seed=seed)
+                seq = drift_case(kind, seed)[0]
                 cases.append((f'{kind} {seed} clean', seq.W, seq.S))
         for name, W, S in cases:
             row(name, W, S, e3d(GrassmannNRSfM().fit(W).S, S))
