@@ -337,6 +337,10 @@ def kinect_paper_table(doc):
                   else 'not a sheet (whole_perspective)')
         lines += ['', f"surface 'auto' on the complete tracks: edge-length variation "
                   f"{fmt(auto['variation'])}, {chosen} (record 0726)."]
+    if 'sheet_seconds' in doc:
+        lines += ['', f"Wall seconds: whole {fmt(doc['solve_seconds'], 0)}, sheet_perspective "
+                  f"{fmt(doc['sheet_seconds'], 0)} (records 0724, 0731), the live pipeline "
+                  f"{fmt(doc['live_seconds'], 0)}."]
     return lines
 
 
@@ -447,7 +451,7 @@ SECTIONS = (('accuracy', 'Accuracy', 'e3D; "A": Akhter\'s metric, the one of the
             ('camera_pipeline', 'Images to points over DDS', 'Images at 30 Hz -> tracker node '
              '-> reconstruction node (`python -m bench.camera_pipeline`)', camera_pipeline_table),
             ('kinect_paper', "The paper's kinect_paper sequence", 'From its 191 images; e3D on '
-             'the ground truth located in it, records 0622, 0722, 0723, 0724 '
+             'the ground truth located in it, records 0622, 0722, 0723, 0724, 0731 '
              '(`python -m bench.kinect_paper`)',
              kinect_paper_table),
             ('perspective', 'Perspective', 'The projective-depth iteration; e3D with a '

@@ -78,13 +78,21 @@ def test_long_sequences_take_their_lengths_from_key_frames():
     assert metrics.e3d(result.S, S, scale=True) <= BAR * rigid
 
 
-def test_given_lengths_solve_one_frame():
+def test_given_lengths_the_largest_depths_meet_the_lp_maximum():
+    """With the LP's own lengths (cones tightened to 1e-4), the relaxation's depths meet every
+    cone and reach the LP's maximum within 1 % per track, one frame or several at once."""
     W, _ = pinhole_sheet('bending', 4, 40)
     edges = max_depth.neighbour_edges(W, 6)
-    Z, d, _ = max_depth.max_depth(W, edges)
-    Z1, d1, _ = max_depth.max_depth(W[6:8], edges, lengths=d)
-    np.testing.assert_array_equal(d1, d)
-    np.testing.assert_allclose(Z1[0], Z[3], rtol=0.05)
+    Z, d, _ = max_depth.max_depth(W, edges, tol=1e-4)
+    Z_all = max_depth.largest_depths(W, edges, d)
+    np.testing.assert_allclose(max_depth.largest_depths(W[6:8], edges, d)[0], Z_all[3],
+                               rtol=1e-12)
+    np.testing.assert_allclose(Z_all, Z, rtol=0.01)
+    q, (i, j) = max_depth._rays(W), edges
+    lengths = np.linalg.norm(Z_all[:, i, None] * q[:, i] - Z_all[:, j, None] * q[:, j], axis=-1)
+    assert (lengths <= d * (1 + 1e-9)).all()
+    with_one_round = max_depth.largest_depths(W, edges, d, max_rounds=1)
+    assert (with_one_round >= Z_all).all() and (with_one_round > Z_all * 1.01).any()
 
 
 @pytest.mark.parametrize('name, bar', [('kinect_paper', 0.09), ('white_cartoon_tshirt', 0.11)])

@@ -31,7 +31,7 @@ are then fitted to the lengths as equalities, ``min_Z sum_e (||Z_i q_i - Z_j q_j
 anchors in each frame (:func:`interpolated_depths`): the LP's cost grows faster than its size
 (10 x 90: 6 s, 40 x 100: 50-75 s CPU). On sequences longer than ``key_frames``, the lengths
 come from the LP on that many frames spread over it; every other frame, independent given
-the lengths, from an LP of its depths alone.
+the lengths, takes the largest depths they allow (:func:`largest_depths`, no LP).
 
 Orthographic tracks have parallel rays: the depths are then unbounded (any depth translation
 is feasible), so MDH is for pinhole tracks only.
@@ -65,8 +65,6 @@ MAX_CUTS = 30
 MAX_TRACKS = 100
 #: frames the lengths are solved on; a longer sequence's other frames take those lengths
 KEY_FRAMES = 40
-#: frames per LP of the other frames (independent given the lengths)
-LENGTH_CHUNK = 10
 #: an anchor's trajectory is reproduced by its neighbours' within this many times the median
 #: track's residual (record 0723)
 CONSISTENT = 2.0
@@ -107,25 +105,19 @@ def _cut_rows(a, q, i, j, frames, edges, P, E):
     return sp.csr_matrix((vals, (rows, cols)), shape=(n, q.shape[0] * P + E))
 
 
-def max_depth(W, edges=None, *, k=NEIGHBOURS, tol=TOL, max_cuts=MAX_CUTS, lengths=None):
+def max_depth(W, edges=None, *, k=NEIGHBOURS, tol=TOL, max_cuts=MAX_CUTS):
     """MDH depths of the normalised tracks ``W: (2F, P)`` over ``edges = (i, j)`` (default:
     :func:`.inextensible.neighbour_edges` with ``k``). Returns ``(Z: (F, P), d: (E,), info)``
     with ``sum(d) = 1``; info: edges, cutting rounds, cuts, the largest relative violation
-    left and the LP's seconds. ``lengths: (E,)``: ``d`` given (from other frames of the same
-    sheet), only the depths solved; then one frame is enough."""
-    x = validate_tracks(W, min_frames=1 if lengths is not None else 2, min_points=4)
+    left and the LP's seconds. Given the lengths, see :func:`largest_depths`."""
+    x = validate_tracks(W, min_frames=2, min_points=4)
     i, j = edges if edges is not None else neighbour_edges(x, k)
     i, j = np.asarray(i, dtype=np.intp), np.asarray(j, dtype=np.intp)
     q = _rays(x)
     F, P, _ = q.shape
     E = i.size
     cost = np.r_[-np.ones(F * P), np.zeros(E)] / (F * P)
-    if lengths is None:
-        A_eq, b_eq, bounds = sp.csr_matrix(np.r_[np.zeros(F * P), np.ones(E)][None]), [1.0], \
-            (0, None)
-    else:
-        A_eq, b_eq = None, None
-        bounds = np.c_[np.r_[np.zeros(F * P), lengths], np.r_[np.full(F * P, np.inf), lengths]]
+    A_eq, b_eq = sp.csr_matrix(np.r_[np.zeros(F * P), np.ones(E)][None]), [1.0]
     dirs = _initial_directions(q, i, j)
     ff, ee = np.meshgrid(np.arange(F), np.arange(E), indexing='ij')
     m = dirs.shape[2]
@@ -136,7 +128,7 @@ def max_depth(W, edges=None, *, k=NEIGHBOURS, tol=TOL, max_cuts=MAX_CUTS, length
     for rounds in range(1, max_cuts + 1):
         A = sp.vstack(blocks).tocsr()
         res = linprog(cost, A_ub=A, b_ub=np.zeros(A.shape[0]), A_eq=A_eq, b_eq=b_eq,
-                      bounds=bounds, method='highs-ipm')
+                      bounds=(0, None), method='highs-ipm')
         if res.status != 0:
             raise RuntimeError(f'max_depth: the LP failed ({res.message})')
         Z = res.x[:F * P].reshape(F, P)
@@ -156,6 +148,41 @@ def max_depth(W, edges=None, *, k=NEIGHBOURS, tol=TOL, max_cuts=MAX_CUTS, length
     info = {'edges': int(E), 'rounds': rounds, 'cuts': int(cuts),
             'violation': worst, 'seconds_cpu': time.process_time() - t0}
     return Z, d, info
+
+
+def largest_depths(W, edges, lengths, *, max_rounds=None):
+    """``Z: (F, P)``: per frame of the normalised tracks ``W: (2F, P)``, the largest depths
+    whose edges ``(i, j)`` are no longer than ``lengths: (E,)`` (the maximum depth with the
+    lengths known, record 0731). Along unit rays at angle ``t`` the ranges ``r`` of an edge
+    meet its cone iff each is at most ``r_other cos t + sqrt(d^2 - r_other^2 sin^2 t)``. Every
+    range starts at its edges' least ``d / sin t`` and is lowered to that bound of each
+    neighbour until none moves (Bellman-Ford's relaxation: at most ``P`` rounds, about the
+    graph's diameter in practice); every cone then holds."""
+    x = validate_tracks(W, min_frames=1, min_points=2)
+    i, j = (np.asarray(e, dtype=np.intp) for e in edges)
+    d = np.asarray(lengths, dtype=np.float64)
+    q = _rays(x)
+    norm = np.linalg.norm(q, axis=-1)                                       # (F, P)
+    F, P = norm.shape
+    cos = np.clip(np.einsum('fek,fek->fe', q[:, i], q[:, j]) / (norm[:, i] * norm[:, j]), -1, 1)
+    src, dst = np.r_[i, j], np.r_[j, i]
+    order = np.argsort(dst, kind='stable')
+    src, dst = src[order], dst[order]
+    cos, d2 = np.concatenate([cos, cos], 1)[:, order], np.r_[d, d][order] ** 2
+    sin2 = 1 - cos ** 2
+    starts = np.flatnonzero(np.r_[True, dst[1:] != dst[:-1]])
+    nodes = dst[starts]
+    r = np.full((F, P), np.inf)
+    r[:, nodes] = np.sqrt(np.minimum.reduceat(d2 / np.maximum(sin2, 1e-300), starts, axis=1))
+    for _ in range(P if max_rounds is None else max_rounds):
+        r_src = r[:, src]
+        bound = r_src * cos + np.sqrt(np.maximum(d2 - r_src ** 2 * sin2, 0.0))
+        lowered = np.minimum(r[:, nodes], np.minimum.reduceat(bound, starts, axis=1))
+        moved = (lowered < r[:, nodes] * (1 - 1e-12)).any()
+        r[:, nodes] = lowered
+        if not moved:
+            break
+    return r / norm
 
 
 def refined_depths(W, Z, d, edges):
@@ -246,12 +273,14 @@ def interpolated_depths(W, anchors, Z_anchor, k=NEIGHBOURS):
 class MaxDepthResult:
     """``S: (3F, P)`` camera frame (projects onto the tracks; mean depth 1 over the sequence),
     ``Z: (F, P)`` its depths, ``anchors``: the tracks the LP solved, ``edges = (i, j)``: their
-    neighbour graph (indices into ``anchors``), ``info``: see :func:`max_depth`."""
+    neighbour graph (indices into ``anchors``), ``lengths: (E,)`` the edges' (in the scale of
+    ``Z``), ``info``: see :func:`max_depth`."""
     S: np.ndarray
     Z: np.ndarray
     anchors: np.ndarray
     info: dict = field(default_factory=dict)
     edges: tuple = None
+    lengths: np.ndarray = None
 
 
 class MaxDepthNRSfM:
@@ -261,8 +290,8 @@ class MaxDepthNRSfM:
     (:func:`interpolated_depths`); ``tol``: the cones' relative tolerance; ``refine``: the
     LP's depths fitted to its lengths as equalities (:func:`refined_depths`, record 0720);
     ``key_frames``: on longer sequences the lengths come from the LP on this many frames
-    spread over the sequence, and each other frame's depths from the LP with those lengths
-    (record 0724)."""
+    spread over the sequence, and each other frame's depths are the largest those lengths
+    allow (records 0724, 0731)."""
 
     def __init__(self, neighbours=NEIGHBOURS, max_tracks=MAX_TRACKS, tol=TOL, refine=True,
                  key_frames=KEY_FRAMES):
@@ -296,13 +325,14 @@ class MaxDepthNRSfM:
             Z_a = refined_depths(sub, Z_a, d, edges)
             info['refine_seconds_cpu'] = time.process_time() - t0
         Z = interpolated_depths(x, anchors, Z_a, self.neighbours)
-        Z = Z / Z.mean()
-        return MaxDepthResult(S=shapes(x, Z), Z=Z, anchors=anchors, info=info, edges=edges)
+        scale = Z.mean()
+        return MaxDepthResult(S=shapes(x, Z / scale), Z=Z / scale, anchors=anchors, info=info,
+                              edges=edges, lengths=d / scale)
 
     def _anchor_depths(self, sub, edges):
         """``(Z: (F, n), d, info)`` of the anchors' tracks ``sub: (2F, n)``: the LP on every
-        frame, or on ``key_frames`` of them and then, with their lengths, on the others
-        (LENGTH_CHUNK frames per LP)."""
+        frame, or on ``key_frames`` of them and then, with their lengths, the others'
+        :func:`largest_depths`."""
         F = sub.shape[0] // 2
         keys = spread_frames(F, self.key_frames)
         Z_keys, d, info = max_depth(sub[frame_rows(keys, 2)], edges, tol=self.tol)
@@ -312,8 +342,7 @@ class MaxDepthNRSfM:
         Z[keys] = Z_keys
         others = np.setdiff1d(np.arange(F), keys)
         t0 = time.process_time()
-        for chunk in np.array_split(others, -(-others.size // LENGTH_CHUNK)):
-            Z[chunk] = max_depth(sub[frame_rows(chunk, 2)], edges, tol=self.tol, lengths=d)[0]
+        Z[others] = largest_depths(sub[frame_rows(others, 2)], edges, d)
         info.update(key_frames=int(keys.size),
                     other_frames_seconds_cpu=time.process_time() - t0)
         return Z, d, info
