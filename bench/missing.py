@@ -15,10 +15,11 @@
   the shapes cost (record 0809).
 * ``drift``: 5 % of the tracks drifting up to 20 px (:func:`synthetic.drifting_tracks`, 1 px =
   the sequence's max |centred W| / 200), against the clean tracks (bar <= 1.2), with
-  ``robust`` 'never' (the default) and 'cauchy' (its weighed-down tracks' 3D from their kept
+  ``robust`` 'auto' (the default since record 0816: 'cauchy' where it weighs down at least
+  2 % of the tracks), 'never' and 'cauchy' (its weighed-down tracks' 3D from their kept
   neighbours since record 0811, found also by their neighbours' residual since record 0812);
-  the drifting tracks found, clean ones touched; the default and
-  the clean tracks also with the true rotations (record 0809).
+  the drifting tracks found, clean ones touched; 'never' and the clean tracks also with the
+  true rotations (record 0809).
 
 Synthetic: 60 frames x 400 tracks, orbiting camera, noise r = 0.005 (1 px), seeds 3 (and 4, 5
 in --full). ``python -m bench.missing [--smoke|--full]`` writes ``bench/results/missing.json``.
@@ -166,13 +167,16 @@ def drift_row(kind, seed, F, P):
     common.log(f'missing: drift {kind} seed {seed}')
     clean = e3d(solve(seq.W)[0].S, seq.S)
     true = WarmStart(R=seq.R)
-    clean_true, never_true = (e3d(solve(X, init=true)[0].S, seq.S) for X in (seq.W, W))
+    clean_true, never_true = (e3d(solve(X, init=true, robust='never')[0].S, seq.S)
+                              for X in (seq.W, W))
     row = {'case': 'drift', 'sequence': kind, 'seed': seed, 'F': F, 'P': P, 'clean': clean,
            'bar': BARS['drift'], 'drifting': int(drifting.sum()),
            'clean_true_rotations': clean_true, 'never_true_rotations': never_true,
            'ratio_true_rotations': never_true / clean_true}
-    for robust in ('never', 'cauchy'):
+    for robust in ('auto', 'never', 'cauchy'):
         result, seconds = solve(W, robust=robust)
+        if robust == 'auto':
+            row['auto_weighed'] = result.track_weights is not None
         down = np.zeros(P, dtype=bool)
         down[result.report.downweighted_tracks] = True
         row[robust] = e3d(result.S, seq.S)
@@ -189,7 +193,7 @@ def summary(rows):
     """Per case: the mean of the ratios and how many rows meet the bar."""
     out = {}
     for case, key in (('occlusion', 'ratio'), ('occlusion', 'ratio_true_rotations'),
-                      ('drift', 'ratio_never'), ('drift', 'ratio_cauchy'),
+                      ('drift', 'ratio_auto'), ('drift', 'ratio_never'), ('drift', 'ratio_cauchy'),
                       ('drift', 'ratio_true_rotations'), ('back', 'ratio')):
         values = [r[key] for r in rows if r['case'] == case]
         if values:
@@ -237,7 +241,8 @@ def text(payload):
                        f"true rotations {r['masked_true_rotations']:.4f} / "
                        f"{r['complete_true_rotations']:.4f} = {r['ratio_true_rotations']:.3f}")
         else:
-            out.append(f"drift {r['sequence']} s{r['seed']}: never {r['ratio_never']:.3f}, "
+            out.append(f"drift {r['sequence']} s{r['seed']}: auto {r['ratio_auto']:.3f}, "
+                       f"never {r['ratio_never']:.3f}, "
                        f"cauchy {r['ratio_cauchy']:.3f} (found {r['found']}/{r['drifting']}, "
                        f"clean touched {r['clean_touched']}; clean+cauchy "
                        f"{r['clean_tracks_robust']:.3f}); true rotations "

@@ -421,13 +421,16 @@ def missing_table(doc):
                          f"{fmt(r.get('complete_true_rotations'))} | {fmt(r['ratio'], 3)} "
                          f"({r['bar']}); true rotations {fmt(r.get('ratio_true_rotations'), 3)} |")
         else:
+            weighed = 'applied' if r.get('auto_weighed') else 'not applied'
+            auto = f"'auto' {fmt(r['auto'])} (weights {weighed}); " if 'auto' in r else ''
             lines.append(f"| 5 % drifting 20 px | {r['sequence']} s{r['seed']} | {size} | - | "
-                         f"{fmt(r['never'])}; robust 'cauchy' {fmt(r['cauchy'])} (found "
+                         f"{auto}'never' {fmt(r['never'])}; 'cauchy' {fmt(r['cauchy'])} (found "
                          f"{r['found']}/{r['drifting']}, clean touched {r['clean_touched']}); "
-                         f"true rotations {fmt(r.get('never_true_rotations'))} | clean: "
-                         f"{fmt(r['clean'])}; true rotations "
+                         f"true rotations, 'never' {fmt(r.get('never_true_rotations'))} | "
+                         f"clean: {fmt(r['clean'])}; true rotations "
                          f"{fmt(r.get('clean_true_rotations'))} | "
-                         f"{fmt(r['ratio_never'], 3)}; cauchy {fmt(r['ratio_cauchy'], 3)} "
+                         + (f"auto {fmt(r['ratio_auto'], 3)}; " if 'auto' in r else '')
+                         + f"never {fmt(r['ratio_never'], 3)}; cauchy {fmt(r['ratio_cauchy'], 3)} "
                          f"({r['bar']}); true rotations {fmt(r.get('ratio_true_rotations'), 3)} |")
     return lines
 
@@ -461,7 +464,7 @@ SECTIONS = (('accuracy', 'Accuracy', 'e3D; "A": Akhter\'s metric, the one of the
              '(`python -m bench.perspective --seeds 3,4,5,6,7`)', perspective_table),
             ('missing', 'Missing data and tracker errors', 'Unseen entries and drifting '
              'tracks in the offline solver; record 0800, 0801, 0807, 0809, 0811, 0812, '
-             '0814 (`python -m bench.missing`)',
+             '0814, 0816 (`python -m bench.missing`)',
              missing_table),
             ('sheets', 'Sheets', 'e3D and its ratio to rigid factorisation per option '
              '(`python -m bench.sheets`)', sheets_table),

@@ -1,5 +1,5 @@
-"""Robust track weights (robust='cauchy'): drifting tracks found, weighed down and kept out of
-the rotations (records 0801, 0805)."""
+"""Robust track weights (robust='cauchy'; 'auto' where enough tracks drift): drifting tracks
+found, weighed down and kept out of the rotations (records 0801, 0805, 0816)."""
 import numpy as np
 
 from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM
@@ -37,7 +37,7 @@ def test_drifting_tracks_are_weighed_down_and_do_not_pull_the_shapes():
     1.442, 'cauchy' with the rotations on every track 1.439: record 0805)."""
     seq = make_sequence('bending', n_frames=60, n_points=400, noise=0.005, seed=4)
     W, drifting = drifting_tracks(seq.W, 0.05, 20.0, np.random.default_rng(204))
-    clean = e3d(GrassmannNRSfM().fit(seq.W).S, seq.S)
+    clean = e3d(GrassmannNRSfM(robust='never').fit(seq.W).S, seq.S)
     result = GrassmannNRSfM(robust='cauchy').fit(W)
     down = np.zeros(400, dtype=bool)
     down[result.report.downweighted_tracks] = True
@@ -45,7 +45,7 @@ def test_drifting_tracks_are_weighed_down_and_do_not_pull_the_shapes():
     assert (down & ~drifting).sum() <= 2
     assert np.array_equal(result.track_weights < 1, down)
     assert e3d(result.S, seq.S) <= 1.15 * clean
-    plain = e3d(GrassmannNRSfM().fit(W).S, seq.S)
+    plain = e3d(GrassmannNRSfM(robust='never').fit(W).S, seq.S)
     assert e3d(result.S, seq.S) < 0.9 * plain
 
 
@@ -79,3 +79,16 @@ def test_refit_takes_a_drifting_column_from_the_neighbours():
     assert np.array_equal(np.delete(out, 7, axis=1), np.delete(S, 7, axis=1))
     before = np.linalg.norm(S[:, 7] - seq.S[:, 7])
     assert np.linalg.norm(out[:, 7] - seq.S[:, 7]) < 0.2 * before
+
+
+def test_auto_looks_only_at_dense_tracks():
+    """'auto' (the default, record 0816) leaves fewer than AUTO_MIN_TRACKS tracks to plain least
+    squares, drift or not; 'cauchy' weighs the same sparse set's drifting tracks down."""
+    seq = make_sequence('bending', n_frames=30, n_points=150, noise=0.005, seed=2)
+    W, drifting = drifting_tracks(seq.W, 0.1, 20.0, np.random.default_rng(3))
+    assert 150 < robust.AUTO_MIN_TRACKS
+    auto = GrassmannNRSfM().fit(W)
+    assert auto.track_weights is None and 'robust' not in auto.report.stages
+    np.testing.assert_array_equal(auto.S, GrassmannNRSfM(robust='never').fit(W).S)
+    cauchy = GrassmannNRSfM(robust='cauchy').fit(W)
+    assert (cauchy.track_weights[drifting] < 1).mean() >= 0.8

@@ -198,13 +198,15 @@ SOLVER_PARAMS = (
           "through a pinhole, a solve without a warm start of complete tracks is 'sheet' when "
           "the maximum-depth depths on 10 of its frames keep their edge lengths, else 'any' "
           "(0726); orthographic, 'any'. Complete tracks only for 'sheet'."),
-    _mode('robust', 'never', ('never', 'cauchy'),
+    _mode('robust', 'auto', ('auto', 'never', 'cauchy'),
           "'cauchy': tracks whose residual against a low-rank approximation of all tracks, "
           "where their neighbours' agrees, or against the combination of their nearest tracks, "
           "is far above the others' (a tracker's drift or jumps) weighed down in the data "
           "term (Cauchy's tail beyond 3 and 8 robust deviations), left out of the rotations "
           'and their 3D taken from their neighbours, reported as downweighted_tracks; '
-          "'never': plain least squares (docs/decisions/0801, 0805, 0811, 0812, 0814)."),
+          "'auto': the same on 200 tracks or more where at least 2 % of them are weighed down, "
+          "else plain least squares; 'never': plain least squares (docs/decisions/0801, 0805, "
+          '0811, 0812, 0814, 0816).'),
     _number('rho', 1.2, 'Growth factor of the penalty beta per iteration: closer to 1 for a '
             'slower, more gradual schedule (more iterations).', 1.0, open_low=True),
     _number('beta0', 1e-3, 'Initial penalty beta (also of a resumed solve): lower lets the '

@@ -122,7 +122,6 @@ class GrassmannNRSfM:
             report = SolverReport()
             track_weights = None
             if robust.applies(problem, params):
-                report.stages.append(robust.NAME)
                 problem, track_weights = robust.run(problem, params, report)
             if problem.completion is not None:
                 report.notes.append(

@@ -1,5 +1,8 @@
-"""Stage 'robust' (robust='cauchy'): tracks a tracker lost hold of (drift, jumps) weighed down
-in the data term, before the rotations, so that they do not pull the shapes.
+"""Stage 'robust' (robust='cauchy', or 'auto'): tracks a tracker lost hold of (drift, jumps)
+weighed down in the data term, before the rotations, so that they do not pull the shapes.
+'auto' (the default) looks only at AUTO_MIN_TRACKS tracks or more and weighs down only where
+at least AUTO_SHARE of them would be: dense tracks from a drifting tracker, not the one or two
+tracks of a clean surface's fine detail (record 0816).
 
 Two residuals per track, each over its seen entries, each with IRLS over ROUNDS rounds
 (record 0812): against the affine combination of its nearest tracks not weighed down in the
@@ -58,10 +61,18 @@ NEIGHBOUR_REGULARISATION = 1e-3
 #: the final weights are fitted on every frame beside a drift ``sum_l v_l (f / (F - 1))^l``,
 #: l = 1..DRIFT_ORDER, one per image axis: zero at the first frame, slow (record 0811)
 DRIFT_ORDER = 2
+#: 'auto': fewest tracks the weights are looked for on (sparse sets: plain least squares,
+#: record 0815)
+AUTO_MIN_TRACKS = 200
+#: 'auto': the weights apply where at least this share of the tracks is weighed down (record
+#: 0816)
+AUTO_SHARE = 0.02
 
 
 def applies(problem, params):
-    return params['robust'] != 'never' and problem.P > DETECT_RANK + 1
+    mode = params['robust']
+    return mode != 'never' and problem.P > DETECT_RANK + 1 and (
+        mode == 'cauchy' or problem.P >= AUTO_MIN_TRACKS)
 
 
 def residuals(Wn, weights, seen):
@@ -173,9 +184,15 @@ def kept_tracks(problem):
 
 
 def run(problem, params, report):
-    """``(problem weighted, weights: (P,))``; fills the report's fields."""
+    """``(problem weighted, weights: (P,))``, or ``(problem, None)`` where 'auto' finds fewer
+    than AUTO_SHARE of the tracks to weigh down (a note says so); fills the report's fields."""
     weights = track_weights(problem)
     down = np.flatnonzero(weights < 1.0)
+    if params['robust'] == 'auto' and down.size < AUTO_SHARE * problem.P:
+        report.notes.append(f"robust ('auto'): {down.size} of {problem.P} tracks would be "
+                            f'weighed down, fewer than {AUTO_SHARE:.0%}: plain least squares')
+        return problem, None
+    report.stages.append(NAME)
     report.downweighted_tracks = down.tolist()
     report.notes.append(f'robust ({params["robust"]}): {down.size} of {problem.P} tracks '
                         f'weighed down (smallest weight {weights.min():.3g})')
