@@ -78,7 +78,8 @@ class LivePipeline:
         self.tracking.depth_sign = None if self.camera is None else low_rank_sign
         self._rays = OrderedDict()      # with K: stamp -> (ids, normalised uv, sequence)
         self._signs = {}                # with K: sequence -> its depth sign, once chosen
-        self.orthographic_warning = warn_orthographic      # said once: pixels without K
+        self.orthographic_warning = warn_orthographic      # pixels without K: said once
+        self._said_orthographic = False
         self.latencies = deque(maxlen=LATENCY_WINDOW)
         self._surprised = False         # the last frame asked for a fresh window
         self._lock = threading.Lock()   # the refinement: tracking and publishing threads
@@ -177,7 +178,9 @@ class LivePipeline:
             if self.projection == 'perspective':
                 raise FrameError("solver.projection 'perspective' needs camera intrinsics (the "
                                  'camera parameter or a camera_info topic); none yet')
-            self.orthographic_warning()
+            if not self._said_orthographic:
+                self._said_orthographic = True
+                self.orthographic_warning()
             return frame
         K = self.camera
         y = (frame.uv[:, 1] - K[1, 2]) / K[1, 1]

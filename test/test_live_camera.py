@@ -86,6 +86,21 @@ def test_k_makes_the_live_points_better_than_pixels_as_orthographic(pinhole, wit
     assert ours[0] < theirs[0] and ours[1] < 0.95 * theirs[1], (ours, theirs)
 
 
+def test_pixels_without_k_are_said_once_per_pipeline(pinhole):
+    """Without K the pipeline says so once, whatever resets Python's warnings registry on the
+    way (libraries' catch_warnings do: the quick start's demo printed it 4 times, now once)."""
+    _, _, stamps, frames = pinhole
+    pipeline = make_pipeline({**params.defaults(), **SMALL})
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter('always')
+            for stamp, (ids, uv) in zip(stamps[:5], frames[:5]):
+                pipeline.add_frame(int(stamp), ids, uv)
+    finally:
+        pipeline.close()
+    assert [w.category for w in caught] == [OrthographicPixelsWarning]
+
+
 @pytest.mark.parametrize('kind, n_points', [('inflating', 200), ('bending', 300)])
 def test_low_rank_sign_tells_the_true_depths_from_their_mirror(kind, n_points):
     S = pinhole_surface(kind, n_points)
