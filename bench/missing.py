@@ -177,12 +177,12 @@ def drift_row(kind, seed, F, P):
         result, seconds = solve(W, robust=robust)
         if robust == 'auto':
             row['auto_weighed'] = result.track_weights is not None
-        down = np.zeros(P, dtype=bool)
-        down[result.report.downweighted_tracks] = True
         row[robust] = e3d(result.S, seq.S)
         row[f'ratio_{robust}'] = row[robust] / clean
         row[f'seconds_{robust}'] = seconds
-        if robust != 'never':
+        if robust == 'cauchy':
+            down = np.zeros(P, dtype=bool)
+            down[result.report.downweighted_tracks] = True
             row['found'] = int((down & drifting).sum())
             row['clean_touched'] = int((down & ~drifting).sum())
             row['clean_tracks_robust'] = e3d(solve(seq.W, robust=robust)[0].S, seq.S) / clean

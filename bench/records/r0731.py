@@ -20,30 +20,10 @@ from ..perspective import pinhole_sheet
 def lp_with_lengths(W, edges, d):
     """``(F, n)`` depths of ``W: (2F, n)`` by record 0724's LP with the lengths ``d`` fixed:
     the LP's lengths pinned by their bounds, its sum constraint dropped."""
-    i, j = edges
     q = md._rays(W)
-    F, P, _ = q.shape
-    E = i.size
-    cost = np.r_[-np.ones(F * P), np.zeros(E)] / (F * P)
-    bounds = np.c_[np.r_[np.zeros(F * P), d], np.r_[np.full(F * P, np.inf), d]]
-    dirs = md._initial_directions(q, i, j)
-    ff, ee = np.meshgrid(np.arange(F), np.arange(E), indexing='ij')
-    m = dirs.shape[2]
-    blocks = [md._cut_rows(dirs.reshape(-1, 3), q, i, j, np.repeat(ff.ravel(), m),
-                           np.repeat(ee.ravel(), m), P, E)]
-    for _ in range(md.MAX_CUTS):
-        A = md.sp.vstack(blocks).tocsr()
-        x = md.linprog(cost, A_ub=A, b_ub=np.zeros(A.shape[0]), bounds=bounds,
-                       method='highs-ipm').x
-        Z = x[:F * P].reshape(F, P)
-        v = Z[:, i, None] * q[:, i] - Z[:, j, None] * q[:, j]
-        norm = np.linalg.norm(v, axis=-1)
-        bad_f, bad_e = np.nonzero(norm > (1 + md.TOL) * d[None])
-        if bad_f.size == 0:
-            return Z
-        a = v[bad_f, bad_e] / norm[bad_f, bad_e, None]
-        blocks.append(md._cut_rows(a, q, i, j, bad_f, bad_e, P, E))
-    return Z
+    FP = q.shape[0] * q.shape[1]
+    bounds = np.c_[np.r_[np.zeros(FP), d], np.r_[np.full(FP, np.inf), d]]
+    return md.cutting_planes(q, *edges, bounds, None, None)[0]
 
 
 def main():

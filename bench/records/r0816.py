@@ -21,11 +21,9 @@ def row(kind, seed):
     seq, W, _ = drift_case(kind, seed)
     clean = GrassmannNRSfM().fit(seq.W)
     reference = e3d(clean.S, seq.S)
-    ratios, auto = {}, None
-    for mode in ('auto', 'never', 'cauchy'):
-        result = GrassmannNRSfM(robust=mode).fit(W)
-        ratios[mode] = e3d(result.S, seq.S) / reference
-        auto = result if mode == 'auto' else auto
+    results = {mode: GrassmannNRSfM(robust=mode).fit(W) for mode in ('auto', 'never', 'cauchy')}
+    ratios = {mode: e3d(r.S, seq.S) / reference for mode, r in results.items()}
+    auto = results['auto']
     weights = (f'applied, {len(auto.report.downweighted_tracks)} tracks'
                if auto.track_weights is not None else 'not applied')
     on_clean = 'applied' if clean.track_weights is not None else 'not applied'

@@ -114,10 +114,19 @@ def max_depth(W, edges=None, *, k=NEIGHBOURS, tol=TOL, max_cuts=MAX_CUTS):
     i, j = edges if edges is not None else neighbour_edges(x, k)
     i, j = np.asarray(i, dtype=np.intp), np.asarray(j, dtype=np.intp)
     q = _rays(x)
+    FP = q.shape[0] * q.shape[1]
+    A_eq = sp.csr_matrix(np.r_[np.zeros(FP), np.ones(i.size)][None])
+    return cutting_planes(q, i, j, (0, None), A_eq, [1.0], tol, max_cuts)
+
+
+def cutting_planes(q, i, j, bounds, A_eq, b_eq, tol=TOL, max_cuts=MAX_CUTS):
+    """The cones of rays ``q: (F, P, 3)`` over edges ``i, j: (E,)`` by cutting planes (the
+    module docstring): the LP maximising the summed depths over the variables ``Z: (F P)``
+    then ``d: (E,)`` within ``bounds`` (linprog's) and ``A_eq x = b_eq`` (None: none).
+    Returns ``(Z: (F, P), d: (E,), info)`` as :func:`max_depth`."""
     F, P, _ = q.shape
     E = i.size
     cost = np.r_[-np.ones(F * P), np.zeros(E)] / (F * P)
-    A_eq, b_eq = sp.csr_matrix(np.r_[np.zeros(F * P), np.ones(E)][None]), [1.0]
     dirs = _initial_directions(q, i, j)
     ff, ee = np.meshgrid(np.arange(F), np.arange(E), indexing='ij')
     m = dirs.shape[2]
@@ -128,7 +137,7 @@ def max_depth(W, edges=None, *, k=NEIGHBOURS, tol=TOL, max_cuts=MAX_CUTS):
     for rounds in range(1, max_cuts + 1):
         A = sp.vstack(blocks).tocsr()
         res = linprog(cost, A_ub=A, b_ub=np.zeros(A.shape[0]), A_eq=A_eq, b_eq=b_eq,
-                      bounds=(0, None), method='highs-ipm')
+                      bounds=bounds, method='highs-ipm')
         if res.status != 0:
             raise RuntimeError(f'max_depth: the LP failed ({res.message})')
         Z = res.x[:F * P].reshape(F, P)
@@ -273,14 +282,12 @@ def interpolated_depths(W, anchors, Z_anchor, k=NEIGHBOURS):
 class MaxDepthResult:
     """``S: (3F, P)`` camera frame (projects onto the tracks; mean depth 1 over the sequence),
     ``Z: (F, P)`` its depths, ``anchors``: the tracks the LP solved, ``edges = (i, j)``: their
-    neighbour graph (indices into ``anchors``), ``lengths: (E,)`` the edges' (in the scale of
-    ``Z``), ``info``: see :func:`max_depth`."""
+    neighbour graph (indices into ``anchors``), ``info``: see :func:`max_depth`."""
     S: np.ndarray
     Z: np.ndarray
     anchors: np.ndarray
     info: dict = field(default_factory=dict)
     edges: tuple = None
-    lengths: np.ndarray = None
 
 
 class MaxDepthNRSfM:
@@ -325,9 +332,8 @@ class MaxDepthNRSfM:
             Z_a = refined_depths(sub, Z_a, d, edges)
             info['refine_seconds_cpu'] = time.process_time() - t0
         Z = interpolated_depths(x, anchors, Z_a, self.neighbours)
-        scale = Z.mean()
-        return MaxDepthResult(S=shapes(x, Z / scale), Z=Z / scale, anchors=anchors, info=info,
-                              edges=edges, lengths=d / scale)
+        Z = Z / Z.mean()
+        return MaxDepthResult(S=shapes(x, Z), Z=Z, anchors=anchors, info=info, edges=edges)
 
     def _anchor_depths(self, sub, edges):
         """``(Z: (F, n), d, info)`` of the anchors' tracks ``sub: (2F, n)``: the LP on every
