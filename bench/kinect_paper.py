@@ -284,25 +284,28 @@ def measure(args, frames_folder, K):
     sheet_seconds = time.perf_counter() - started
     log(f"GrassmannNRSfM through the pinhole, surface 'sheet': {sheet_seconds:.0f} s")
     started = time.perf_counter()
-    S_points, S_refined = live(W, ids, stamps, K, complete)
+    S_points, S_refined, live_stats = live(W, ids, stamps, K, complete)
     live_seconds = time.perf_counter() - started
     log(f'live pipeline: {live_seconds:.0f} s')
     run = dict(W=W, ids=ids, stamps=stamps, ms_per_frame=1000 * frame_seconds, S=result.S,
                S_rigid=S_rigid, S_perspective=S_perspective, S_sheet=S_sheet,
                sheet_seconds=sheet_seconds, solve_seconds=solve_seconds,
                iterations=result.report.iterations, S_points=S_points, S_refined=S_refined,
-               live_seconds=live_seconds, surface_variation=decided.variation,
+               live_seconds=live_seconds, live_stats=live_stats,
+               surface_variation=decided.variation,
                surface_sheet=decided.sheet)
     if cache is not None:
-        np.savez_compressed(cache, **run, **{f'count_{k}': v for k, v in counts.items()})
+        arrays = {k: v for k, v in run.items() if k != 'live_stats'}
+        np.savez_compressed(cache, **arrays, **{f'count_{k}': v for k, v in counts.items()})
     return {**run, 'counts': counts}
 
 
 def live(W, ids, stamps, K, columns):
     """The live pipeline (defaults, inline, intrinsics ``K``) over every track of ``W: (2F,
     P)`` pixels (NaN where not tracked), as the node would run them: ``(S_points,
-    S_refined)``, each ``(3F, C)`` for the tracks ``columns (P,) bool``, NaN where not
-    published."""
+    S_refined, stats)``, each S ``(3F, C)`` for the tracks ``columns (P,) bool``, NaN where
+    not published; stats: the tracking's ms per frame (p50, p95), the frames that went out
+    from a sheet model (``signed``) on points and on points/refined, the first of them."""
     F = W.shape[0] // 2
     pipeline = make_pipeline(defaults(), camera=K)
     frames = []
@@ -311,9 +314,14 @@ def live(W, ids, stamps, K, columns):
         frames.append((ids[seen], W[2 * f:2 * f + 2, seen].T))
     try:
         points, refined, _ = reconstruct_live(pipeline, stamps, frames)
+        latency = [1000 * t for t in pipeline.latency_percentiles()]
     finally:
         pipeline.close()
     frame_of = {int(s): f for f, s in enumerate(stamps)}
+    signed = [frame_of[int(r.stamp_ns)] for r in points if r.signed]
+    stats = dict(tracking_ms_p50_p95=latency, sheet_points=len(signed),
+                 sheet_refined=sum(r.signed for r in refined),
+                 first_sheet_frame=min(signed) + 1 if signed else None)
     wanted = ids[columns]
     shapes = []
     for results in (points, refined):
@@ -323,7 +331,7 @@ def live(W, ids, stamps, K, columns):
             _, mine, theirs = np.intersect1d(wanted, r.ids, return_indices=True)
             S[3 * f:3 * f + 3, mine] = r.xyz[theirs].T
         shapes.append(S)
-    return shapes
+    return (*shapes, stats)
 
 
 def main(argv=None):
@@ -349,7 +357,7 @@ def main(argv=None):
         born_total=int(counts['born'].sum()), reanchored=int(counts['reanchored'].sum()),
         solve_seconds=float(run['solve_seconds']), iterations=int(run['iterations']),
         sheet_seconds=float(run['sheet_seconds']),
-        live_seconds=float(run['live_seconds']),
+        live_seconds=float(run['live_seconds']), live=run.get('live_stats'),
         surface_auto=dict(variation=float(run.get('surface_variation', np.nan)),
                           sheet=bool(run.get('surface_sheet', False))),
         coordinates='whole sequence: normalised K^-1 [u v 1] of the complete tracks; live '

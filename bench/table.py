@@ -341,6 +341,13 @@ def kinect_paper_table(doc):
         lines += ['', f"Wall seconds: whole {fmt(doc['solve_seconds'], 0)}, sheet_perspective "
                   f"{fmt(doc['sheet_seconds'], 0)} (records 0724, 0731), the live pipeline "
                   f"{fmt(doc['live_seconds'], 0)}."]
+    live = doc.get('live')
+    if live:
+        p50, p95 = live['tracking_ms_p50_p95']
+        lines += ['', f'The live pipeline: tracking {fmt(p50, 1)} / {fmt(p95, 1)} ms per frame '
+                  f"(p50 / p95); from the sheet model (record 0732) {live['sheet_points']} of "
+                  f"{doc['frames']} frames on points (the first: frame "
+                  f"{live['first_sheet_frame']}), {live['sheet_refined']} on points/refined."]
     return lines
 
 

@@ -25,12 +25,15 @@ from scipy.spatial import cKDTree
 from grass_nrsfm_ros import params
 from grass_nrsfm_ros.nrsfm import GrassmannNRSfM, WarmStart
 from grass_nrsfm_ros.nrsfm.density import fill_dropped
-from grass_nrsfm_ros.nrsfm.measurement import as_frames, centre
+from grass_nrsfm_ros.nrsfm.max_depth import REFINE_ITERATIONS
+from grass_nrsfm_ros.nrsfm.measurement import as_frames, centre, InvalidInputError, spread_frames
 from grass_nrsfm_ros.nrsfm.missing import fill_unseen
 from grass_nrsfm_ros.nrsfm.rotation import (choose_rank, DEFAULT_CANDIDATES, max_rank,
                                             normalised_svd, rigid_factorisation,
                                             rotations_from_start)
+from grass_nrsfm_ros.nrsfm.sheet_model import fit_sheet_model, frame_depths, FRAME_ITERATIONS
 from grass_nrsfm_ros.nrsfm.solver import one_blas_thread
+from grass_nrsfm_ros.nrsfm.stages import surface as surface_stage
 from grass_nrsfm_ros.nrsfm.tracking import build_model
 from grass_nrsfm_ros.windowing import common_ids, window_matrix
 
@@ -54,6 +57,8 @@ FIRST_WINDOW_BETA_MAX = 1.0
 #: 0802)
 WINDOW_REFILL_ROUNDS = 0
 DEPTH_FLIP = np.diag([1.0, 1.0, -1.0])
+#: frames (spread over a window's context and frames) a sheet model's lengths come from
+SHEET_FRAMES = 10
 
 
 class WindowError(ValueError):
@@ -63,12 +68,14 @@ class WindowError(ValueError):
 @dataclass(frozen=True)
 class FrameResult:
     """One reconstructed frame: ``xyz: (P, 3)`` in the camera frame (x, y = the frame's centred
-    u, v; z = depth) for tracks ``ids: (P,)``."""
+    u, v; z = depth) for tracks ``ids: (P,)``; ``signed``: the depth's sign is known (a sheet
+    model's), not a solve's arbitrary one."""
 
     stamp_ns: int
     frame_id: str
     ids: np.ndarray
     xyz: np.ndarray
+    signed: bool = False
 
 
 @dataclass(frozen=True)
@@ -113,7 +120,9 @@ class Update:
     results). ``results``: the solve's FrameResults of the frames it may still refine (see
     :meth:`Mapper.solve`); ``flipped``: this solve was mirrored to
     agree with the depths published for its frames; ``model``: the tracking's next
-    ShapeModel; ``figures``: what the diagnostics show."""
+    ShapeModel; ``sheet``: the sequence's newest
+    :class:`~grass_nrsfm_ros.nrsfm.sheet_model.SheetModel` (pinhole sheets, else None);
+    ``figures``: what the diagnostics show."""
 
     kind: str
     sequence: int
@@ -126,6 +135,7 @@ class Update:
     results: tuple = ()
     flipped: bool = False
     model: object = None
+    sheet: object = None
     figures: dict = field(default_factory=dict)
     message: str = ''
 
@@ -155,6 +165,7 @@ def make_mapper(config, solver_factory=None, refined_after=None):
     solver_kwargs = params.solver_kwargs(config)
     factory = solver_factory or (lambda: GrassmannNRSfM(**solver_kwargs))
     return Mapper(factory, refined_after=refined_after or refined_after_of(config),
+                  surface=config['solver.surface'],
                   **{k: config[k] for k in params.MAPPER_KEYS})
 
 
@@ -173,10 +184,13 @@ class Mapper:
     ``progress=`` and ``beta_max=``) returning ``S: (3F, P)``, ``R: (F, 3, 3)``, optional
     ``groups: (P,)`` and ``report``. ``refined_after``: each frame's results are given out
     from its first ``refined_after`` solves only (later ones cannot be published).
+    ``surface`` (the solver's): on pinhole frames, 'sheet' or 'auto' (decided once per
+    sequence by the stage ``surface`` on its first window) build a sheet model at each window
+    (:meth:`_sheet_model`, docs/decisions/0732); 'any' never.
     """
 
     def __init__(self, solver_factory=None, *, min_tracks=10, warm_start='resume',
-                 context_frames=60, mapping_tracks=0, refined_after=1):
+                 context_frames=60, mapping_tracks=0, refined_after=1, surface='auto'):
         params.check_window(min_tracks=min_tracks, warm_start=warm_start,
                             context_frames=context_frames, mapping_tracks=mapping_tracks)
         if mapping_tracks and mapping_tracks < max(min_tracks, MIN_MAPPING_TRACKS):
@@ -186,6 +200,8 @@ class Mapper:
         self.min_tracks, self.warm_start = int(min_tracks), warm_start
         self.context_frames, self.mapping_tracks = int(context_frames), int(mapping_tracks)
         self.refined_after = int(refined_after)
+        self.surface = surface
+        self._sheet = None              # (sequence, SheetModel or None, frames, at check)
         self.previous = None            # Solution of the last solved window
         self._rotation_check = None     # (sequence, method, stamps) of the last full check
         self._resumed_rank = None       # Dai's rank of the rotations a resumed start gave
@@ -195,6 +211,7 @@ class Mapper:
     def reset(self):
         """Forget the previous solution and the rotation check (a new sequence)."""
         self.previous, self._rotation_check, self._solves = None, None, (None, {})
+        self._sheet = None
 
     def solve(self, window, progress=None):
         """Solve ``window`` with its context: an Update 'solved' (or 'released', see
@@ -208,9 +225,50 @@ class Mapper:
             problem, S, Z, flipped, seen = self._solve(window, progress)
             model = build_model(self.previous.S, self.previous.R, self.previous.ids,
                                 self.previous.stamps)
-        results = () if window.preview else self._results(problem, S, Z, seen)
+            sheet = self._sheet_model(window)
+            results = () if window.preview else self._results(problem, S, Z, seen, sheet)
         return Update.of(window, 'solved', results=results, flipped=flipped, model=model,
-                         figures=self._figures(time.monotonic() - started))
+                         sheet=sheet, figures=self._figures(time.monotonic() - started))
+
+    # -- a sheet's model ------------------------------------------------------------------------
+    def _sheet_model(self, window):
+        """The SheetModel of ``window``'s sequence: None unless its frames are pinhole and
+        ``surface`` is 'sheet', or 'auto' and the stage ``surface`` takes the frames so far for
+        a sheet (checked at the first window, then whenever the sequence's frames have doubled
+        since the last check, until it does). Built anew at each window by
+        :func:`fit_sheet_model` on SHEET_FRAMES frames spread over the window's context and
+        frames, on the tracks all of them see; the previous model where those are too few or
+        the fit fails."""
+        if self.surface == 'any' or not window.frames[-1].pinhole:
+            return None
+        if self._sheet is None or self._sheet[0] != window.sequence:
+            self._sheet = (window.sequence, None, 0, 0)
+        sequence, previous, seen, checked = self._sheet
+        seen += len(window.fresh)
+        self._sheet = (sequence, previous, seen, checked)
+        if previous is None and self.surface == 'auto' and seen < 2 * checked:
+            return None
+        frames = window.context + window.frames
+        chosen = [frames[k] for k in spread_frames(len(frames), SHEET_FRAMES)]
+        ids = chosen[0].ids
+        for frame in chosen[1:]:
+            ids = common_ids(ids, frame.ids)
+        if ids.size < surface_stage.MIN_POINTS:
+            return previous
+        W = window_matrix(chosen, ids)
+        try:
+            fitted = None
+            if previous is None and self.surface == 'auto':
+                check = surface_stage.check(W)
+                self._sheet = (sequence, None, seen, seen)
+                if not check.sheet:
+                    return None
+                fitted = check.fitted
+            model = fit_sheet_model(W, ids, [f.stamp_ns for f in chosen], fitted)
+        except (InvalidInputError, ValueError, np.linalg.LinAlgError):
+            return previous
+        self._sheet = (sequence, model, seen, self._sheet[3])
+        return model
 
     # -- one solve ------------------------------------------------------------------------------
     def _solve(self, window, progress):
@@ -276,9 +334,10 @@ class Mapper:
             kwargs['beta_max'] = min(values['beta_max'], max(cap, values['beta0']))
         return kwargs
 
-    def _results(self, problem, XY, Z, seen):
+    def _results(self, problem, XY, Z, seen, sheet=None):
         """FrameResults of the frames of ``problem`` solved at most ``refined_after`` times
-        (this solve counted), each on the tracks it sees (``seen: (F, P)``)."""
+        (this solve counted), each on the tracks it sees (``seen: (F, P)``); from the
+        ``sheet`` model (:func:`sheet_result`) where there is one and it reaches the frame."""
         if self._solves[0] != problem.sequence:
             self._solves = (problem.sequence, {})
         solves = self._solves[1]
@@ -290,7 +349,11 @@ class Mapper:
                 ids = problem.ids
                 if not seen[i].all():
                     ids, xyz = ids[seen[i]], xyz[seen[i]]
-                out.append(FrameResult(stamp, problem.frame_ids[i], ids, xyz))
+                result = FrameResult(stamp, problem.frame_ids[i], ids, xyz)
+                if sheet is not None:
+                    uv = problem.W[2 * i:2 * i + 2, seen[i]].T
+                    result = sheet_result(result, uv, sheet, REFINE_ITERATIONS) or result
+                out.append(result)
         return tuple(out)
 
     def _figures(self, seconds):
@@ -455,6 +518,18 @@ class Mapper:
         if method == 'rigid':
             return 1
         return self._resumed_rank if method == 'given' and init is not None else None
+
+
+def sheet_result(result, uv, sheet, iterations=FRAME_ITERATIONS):
+    """``result`` (a FrameResult of normalised points ``uv: (P, 2)``, its ``ids``) with the
+    depths of the SheetModel ``sheet`` (:func:`frame_depths`) as relative depths ``Z / mean(Z) -
+    1`` (:func:`~grass_nrsfm_ros.pipeline.pinhole_points` takes them through the pinhole),
+    ``signed``; None where the model does not reach the frame."""
+    Z = frame_depths(sheet, result.ids, uv, iterations)
+    if Z is None or not np.isfinite(Z).all() or Z.mean() <= 0.0:
+        return None
+    xyz = np.column_stack([uv - uv.mean(axis=0), Z / Z.mean() - 1.0])
+    return replace(result, xyz=xyz, signed=True)
 
 
 def rigid_start(W):

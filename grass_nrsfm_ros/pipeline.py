@@ -126,7 +126,7 @@ class LivePipeline:
         out, updates = [], self.backend.updates()
         for update in updates:
             if update.model is not None:
-                self.tracking.offer(update.sequence, update.model)
+                self.tracking.offer(update.sequence, update.model, update.sheet)
             if self.camera is not None and update.sequence not in self._signs:
                 self._choose_sign(update)
             with self._lock:
@@ -185,7 +185,7 @@ class LivePipeline:
         K = self.camera
         y = (frame.uv[:, 1] - K[1, 2]) / K[1, 1]
         x = (frame.uv[:, 0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
-        frame = replace(frame, uv=np.column_stack([x, y]))
+        frame = replace(frame, uv=np.column_stack([x, y]), pinhole=True)
         self._rays[frame.stamp_ns] = (frame.ids, frame.uv, frame.sequence)
         while len(self._rays) > RAYS_KEPT:
             self._rays.popitem(last=False)
@@ -201,7 +201,8 @@ class LivePipeline:
             self._rays.pop(result.stamp_ns)
         ids, uv, sequence = rays
         at = np.searchsorted(ids, result.ids)
-        xyz = result.xyz * [1.0, 1.0, self._signs.get(sequence, 1.0)]
+        sign = 1.0 if result.signed else self._signs.get(sequence, 1.0)
+        xyz = result.xyz * [1.0, 1.0, sign]
         return replace(result, xyz=pinhole_points(xyz, uv[at], self.scene_depth))
 
     def _choose_sign(self, update):

@@ -19,7 +19,7 @@ import threading
 
 import numpy as np
 
-from grass_nrsfm_ros.mapper import DEPTH_FLIP, FrameResult
+from grass_nrsfm_ros.mapper import DEPTH_FLIP, FrameResult, sheet_result
 from grass_nrsfm_ros.nrsfm.measurement import centre, InvalidInputError
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation, rigid_world_shape
 from grass_nrsfm_ros.nrsfm.tracking import fit_subset, rigid_model, Tracker
@@ -129,7 +129,8 @@ class ShapeTracking:
         self._requested = False         # a fresh window asked for since the current model
         self._bootstrap = []            # Frames of the sequence while it has no model
         self._bootstrap_seen = 0        # frames tracked since then (_bootstrap stops growing)
-        self._waiting = None            # (sequence, ShapeModel) for the next frame
+        self._waiting = None            # (sequence, ShapeModel, SheetModel) for the next frame
+        self._sheet = None              # the SheetModel of the sequence, None: none
         self._sequence = None
         self._lock = threading.Lock()
         self.last = dict(residual=None, model_age=None, model_rank=None, bootstrap=None)
@@ -141,11 +142,13 @@ class ShapeTracking:
         """True once the current sequence is tracked against a solved window's model."""
         return self._tracker is not None and not self._bootstrap
 
-    def offer(self, sequence, model):
-        """The mapping's newest ``model`` of ``sequence``: the next frame of that sequence is
-        tracked against it."""
+    def offer(self, sequence, model, sheet=None):
+        """The mapping's newest ``model`` of ``sequence`` (and its ``sheet``, a SheetModel, or
+        None): the next frame of that sequence is tracked against it; where a sheet model is
+        held, each pinhole frame's depths are the sheet's (:func:`~grass_nrsfm_ros.mapper.
+        sheet_result`)."""
         with self._lock:
-            self._waiting = (sequence, model)
+            self._waiting = (sequence, model, sheet)
         self.stats['models'] += 1
 
     def reset(self):
@@ -176,8 +179,11 @@ class ShapeTracking:
             self.stats['fresh_windows'] += 1
             self._requested = True
         self._residuals.append(tracked.residual)
-        return Tracked(self._result(frame, tracked.ids, tracked.xyz), surprising,
-                       published_depth(tracked))
+        result = self._result(frame, tracked.ids, tracked.xyz)
+        if self._sheet is not None and frame.pinhole:
+            at = np.searchsorted(frame.ids, result.ids)
+            result = sheet_result(result, frame.uv[at], self._sheet) or result
+        return Tracked(result, surprising, published_depth(tracked))
 
     # -- internals ------------------------------------------------------------------------------
     def _take_model(self):
@@ -186,7 +192,7 @@ class ShapeTracking:
             waiting, self._waiting = self._waiting, None
         if waiting is None or waiting[0] != self._sequence:
             return
-        _, model = waiting
+        _, model, self._sheet = waiting
         self._requested = False
         if self.has_model:
             self._tracker.swap(model)
@@ -198,6 +204,7 @@ class ShapeTracking:
 
     def _forget_model(self):
         self._tracker, self._bootstrap, self._bootstrap_seen = None, [], 0
+        self._sheet = None
         self._residuals.clear()
 
     def _surprising(self, residual):

@@ -57,7 +57,8 @@ class FrameError(ValueError):
 class Frame:
     """One accepted frame: ``ids: (P,) uint32`` sorted, ``uv: (P, 2)`` pixels in the same order,
     the ``sequence`` it belongs to; ``depth``: ``(ids: (Q,), z: (Q,))`` published for it (None:
-    not known)."""
+    not known); ``pinhole``: ``uv`` are normalised coordinates ``K^-1 [u v 1]`` of a pinhole
+    camera, not pixels."""
 
     stamp_ns: int
     frame_id: str
@@ -65,6 +66,7 @@ class Frame:
     uv: np.ndarray
     sequence: int = 0
     depth: tuple = None
+    pinhole: bool = False
 
 
 @dataclass(frozen=True)

@@ -23,7 +23,7 @@ away: the true lengths within 0.97-1.03 of them, p5-p95), but in the frames wher
 is bent and tilted, half of the edges are left slack (``||v|| < 0.98 d``): the surface is
 flattened (depth relief 0.16 of the distance against the truth's 0.27). Each frame's depths
 are then fitted to the lengths as equalities, ``min_Z sum_e (||Z_i q_i - Z_j q_j|| - d_e)^2``
-(``scipy.optimize.least_squares``, its sparse Jacobian), started from the LP's depths.
+(Levenberg-Marquardt, every frame at once), started from the LP's depths.
 
 :class:`MaxDepthNRSfM` (``fit(W) -> MaxDepthResult`` with ``S``) solves the LP on at most
 ``max_tracks`` tracks spread over the sheet, none that its neighbours contradict
@@ -43,7 +43,7 @@ from dataclasses import dataclass, field
 import time
 
 import numpy as np
-from scipy.optimize import least_squares, linprog
+from scipy.optimize import linprog
 import scipy.sparse as sp
 from sklearn.neighbors import NearestNeighbors
 
@@ -63,6 +63,9 @@ PRUNE = 0.05
 MAX_CUTS = 30
 #: tracks the LP solves (the rest interpolated)
 MAX_TRACKS = 100
+#: Levenberg-Marquardt iterations of the refinement at most, and its relative tolerance
+REFINE_ITERATIONS = 100
+REFINE_TOL = 1e-8
 #: frames the lengths are solved on; a longer sequence's other frames take those lengths
 KEY_FRAMES = 40
 #: an anchor's trajectory is reproduced by its neighbours' within this many times the median
@@ -194,29 +197,59 @@ def largest_depths(W, edges, lengths, *, max_rounds=None):
     return r / norm
 
 
-def refined_depths(W, Z, d, edges):
+def refined_depths(W, Z, d, edges, *, max_iterations=REFINE_ITERATIONS, tol=REFINE_TOL):
     """``(F, P)`` depths of the normalised tracks ``W: (2F, P)``: per frame, the least-squares
     fit of the edge lengths ``d: (E,)`` as equalities over ``edges = (i, j)``, ``min_Z sum_e
-    (||Z_i q_i - Z_j q_j|| - d_e)^2``, started from ``Z: (F, P)`` (the LP's depths)."""
+    (||Z_i q_i - Z_j q_j|| - d_e)^2``, started from ``Z: (F, P)`` (the LP's depths).
+    Levenberg-Marquardt on every frame at once (each frame's normal matrix ``(P, P)``, its
+    damping per frame); a frame stops when its cost or its step changes by at most ``tol``
+    relative, or after ``max_iterations``."""
     i, j = (np.asarray(e, dtype=np.intp) for e in edges)
     q = _rays(W)
+    Z = np.array(Z, dtype=np.float64)
     F, P = Z.shape
-    rows, cols = np.repeat(np.arange(i.size), 2), np.stack([i, j], 1).ravel()
-    out = np.empty_like(Z)
-    for f in range(F):
-        qi, qj = q[f, i], q[f, j]
+    pairs = np.r_[i * P + i, j * P + j, i * P + j, j * P + i]
+    diagonal = np.arange(P)
+    damping = np.full(F, 1e-3)
+    v, n = _edge_vectors(Z, q[:, i], q[:, j], i, j)
+    cost = ((n - d) ** 2).sum(axis=1)
+    active = np.arange(F)
+    for _ in range(max_iterations):
+        f, m = active, active.size
+        qi, qj = q[f][:, i], q[f][:, j]
+        r = n[f] - d
+        u = v[f] / np.maximum(n[f], 1e-300)[..., None]
+        a, b = np.einsum('fek,fek->fe', u, qi), -np.einsum('fek,fek->fe', u, qj)   # dr/dZ
+        H = np.bincount((pairs + P * P * np.arange(m)[:, None]).ravel(),
+                        np.concatenate([a * a, b * b, a * b, a * b], axis=1).ravel(),
+                        minlength=m * P * P).reshape(m, P, P)
+        g = np.bincount((np.r_[i, j] + P * np.arange(m)[:, None]).ravel(),
+                        np.concatenate([a * r, b * r], axis=1).ravel(),
+                        minlength=m * P).reshape(m, P)
+        h = H[:, diagonal, diagonal]
+        H[:, diagonal, diagonal] += damping[f, None] * np.maximum(
+            h, 1e-12 * h.max(axis=1, keepdims=True))
+        step = np.linalg.solve(H, g[..., None])[..., 0]
+        Z_new = Z[f] - step
+        v_new, n_new = _edge_vectors(Z_new, qi, qj, i, j)
+        c_new = ((n_new - d) ** 2).sum(axis=1)
+        better = c_new < cost[f]
+        done = (np.abs(cost[f] - c_new) <= tol * cost[f]) | (
+            np.linalg.norm(step, axis=1) <= tol * (tol + np.linalg.norm(Z[f], axis=1)))
+        fb = f[better]
+        Z[fb], v[fb], n[fb], cost[fb] = Z_new[better], v_new[better], n_new[better], \
+            c_new[better]
+        damping[f] = np.where(better, damping[f] / 3, damping[f] * 4)
+        active = f[~done & (damping[f] < 1e10)]
+        if active.size == 0:
+            break
+    return Z
 
-        def residual(z):
-            return np.linalg.norm(z[i, None] * qi - z[j, None] * qj, axis=1) - d
 
-        def jacobian(z):
-            v = z[i, None] * qi - z[j, None] * qj
-            u = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-300)
-            vals = np.stack([(u * qi).sum(1), -(u * qj).sum(1)], 1).ravel()
-            return sp.csr_matrix((vals, (rows, cols)), shape=(i.size, P))
-
-        out[f] = least_squares(residual, Z[f], jac=jacobian, method='trf', x_scale='jac').x
-    return out
+def _edge_vectors(Z, qi, qj, i, j):
+    """``(v: (F, E, 3), |v|: (F, E))`` of the edges ``Z_i q_i - Z_j q_j``."""
+    v = Z[:, i, None] * qi - Z[:, j, None] * qj
+    return v, np.linalg.norm(v, axis=-1)
 
 
 def shapes(W, Z):
@@ -267,27 +300,35 @@ def interpolated_depths(W, anchors, Z_anchor, k=NEIGHBOURS):
     X = trajectory_embedding(W)
     k = min(k, anchors.size)
     _, near = NearestNeighbors(n_neighbors=k).fit(X[anchors]).kneighbors(X)   # (P, k)
-    xy = as_frames(W, 2).transpose(0, 2, 1)                                   # (F, P, 2)
+    Z = plane_depths(as_frames(W, 2).transpose(0, 2, 1), anchors, Z_anchor, near)
+    Z[:, anchors] = Z_anchor
+    return Z
+
+
+def plane_depths(xy, anchors, Z_anchor, near):
+    """``(F, P)``: at each image point ``xy: (F, P, 2)``, the least-squares plane ``Z = a + b .
+    x`` through the depths ``Z_anchor: (F, n)`` of its anchors ``anchors[near]`` (``near: (P,
+    k)`` indices into ``anchors``)."""
     local = xy[:, anchors[near], :] - xy[:, :, None, :]                       # (F, P, k, 2)
     A = np.concatenate([np.ones(local.shape[:3] + (1,)), local], axis=-1)
     normal = np.einsum('fpki,fpkj->fpij', A, A)
     normal += 1e-9 * np.trace(normal, axis1=2, axis2=3)[..., None, None] * np.eye(3)
     rhs = np.einsum('fpki,fpk->fpi', A, Z_anchor[:, near])
-    Z = np.linalg.solve(normal, rhs[..., None])[..., 0, 0]
-    Z[:, anchors] = Z_anchor
-    return Z
+    return np.linalg.solve(normal, rhs[..., None])[..., 0, 0]
 
 
 @dataclass
 class MaxDepthResult:
     """``S: (3F, P)`` camera frame (projects onto the tracks; mean depth 1 over the sequence),
     ``Z: (F, P)`` its depths, ``anchors``: the tracks the LP solved, ``edges = (i, j)``: their
-    neighbour graph (indices into ``anchors``), ``info``: see :func:`max_depth`."""
+    neighbour graph (indices into ``anchors``), ``lengths: (E,)`` the LP's, ``info``: see
+    :func:`max_depth`."""
     S: np.ndarray
     Z: np.ndarray
     anchors: np.ndarray
     info: dict = field(default_factory=dict)
     edges: tuple = None
+    lengths: np.ndarray = None
 
 
 class MaxDepthNRSfM:
@@ -333,7 +374,8 @@ class MaxDepthNRSfM:
             info['refine_seconds_cpu'] = time.process_time() - t0
         Z = interpolated_depths(x, anchors, Z_a, self.neighbours)
         Z = Z / Z.mean()
-        return MaxDepthResult(S=shapes(x, Z), Z=Z, anchors=anchors, info=info, edges=edges)
+        return MaxDepthResult(S=shapes(x, Z), Z=Z, anchors=anchors, info=info, edges=edges,
+                              lengths=d)
 
     def _anchor_depths(self, sub, edges):
         """``(Z: (F, n), d, info)`` of the anchors' tracks ``sub: (2F, n)``: the LP on every
