@@ -208,7 +208,7 @@ def run(seconds=20.0, step=8, method=None, solver='grassmann', encoding='rgb8',
             'tracks alive', 'failed checks', 're-anchored')},
         node_diagnostics={k: node.get(k) for k in (
             'messages received', 'frames published', 'tracking latency p50 ms',
-            'tracking latency p95 ms', 'windows solved')},
+            'tracking latency p95 ms', 'windows solved', 'frames from a sheet model')},
         load_average_before=[round(x, 2) for x in load_before],
         load_average_after=[round(x, 2) for x in load_after], exit_codes=codes)
 

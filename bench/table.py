@@ -311,16 +311,18 @@ def frontend_table(doc):
 
 def camera_pipeline_table(doc):
     lines = ['| run | image | Fast DDS profile | frames back | image -> points p50 / p95 ms | '
-             'load average |', '|---|---|---|---|---|---|']
+             'load average | node: windows solved, frames from a sheet model (record 0732) |',
+             '|---|---|---|---|---|---|---|']
     for key, run in doc.items():
         if not isinstance(run, dict) or 'environment' not in run:
             continue
-        lat = run.get('image_to_points_ms', {})
+        lat, node = run.get('image_to_points_ms', {}), run.get('node_diagnostics', {})
         load = max(run.get('load_average_before', [0])[0], run.get('load_average_after', [0])[0])
         lines.append(f"| {key} | {run['size'][1]} x {run['size'][0]} {run['encoding']} | "
                      f"{run.get('dds_profile', 'Fast DDS defaults')} | {run['points_back']} / "
                      f"{run['sent']} | {fmt(lat.get('p50'), 0)} / {fmt(lat.get('p95'), 0)} | "
-                     f'{fmt(load, 1)} |')
+                     f'{fmt(load, 1)} | {node.get("windows solved", "-")}, '
+                     f'{node.get("frames from a sheet model", "-")} |')
     return lines
 
 

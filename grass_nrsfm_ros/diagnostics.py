@@ -61,6 +61,7 @@ def values(snap):
                 'frames awaiting refinement': snap['pending'],
                 'fresh windows requested': tracking['fresh_windows'],
                 'frames not tracked (published flat)': tracking['tracking_failed'],
+                'frames from a sheet model': tracking['sheet_frames'],
                 'first model after frames': _blank(tracking['first_model_after'])})
     out.update({k.replace('_', ' '): v for k, v in snap['last_solve'].items()})
     out.update({'messages received': counts.get('messages', 0),

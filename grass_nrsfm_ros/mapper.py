@@ -13,7 +13,9 @@ NaN where a frame does not see a track (the solver fills those; the starts read 
 completed, and each frame's results hold the tracks it sees); an :class:`Update` carries
 :class:`FrameResult` s (``xyz: (P, 3)`` in the camera frame: the
 frame's centred u, v and the depth, in pixels) and a
-:class:`~grass_nrsfm_ros.nrsfm.tracking.ShapeModel` for the tracking.
+:class:`~grass_nrsfm_ros.nrsfm.tracking.ShapeModel` for the tracking; for a pinhole sheet also
+its :class:`~grass_nrsfm_ros.nrsfm.sheet_model.SheetModel`, rebuilt at every window, from which
+its frames' results come (docs/decisions/0732).
 """
 from dataclasses import dataclass, field, replace
 import inspect

@@ -21,6 +21,7 @@ s z)`` from the reconstruction's centred depth ``z`` (normalised units), ``X, Y 
 depth sign ``s`` (an orthographic solve's is arbitrary) is chosen once per sequence, from the
 frames of its first solved window (:func:`~grass_nrsfm_ros.nrsfm.perspective.low_rank_sign`);
 later windows keep the sign of the earlier ones, so it holds (frames before it: ``s = 1``).
+Results from a pinhole sheet's model (``signed``) carry their own sign: ``s`` is not applied.
 Without ``K`` the pixels are solved as orthographic projections (warned once).
 
 Shapes: ``ids: (P,)`` track ids, ``uv: (P, 2)`` pixels; a FrameResult's ``xyz: (P, 3)`` in the

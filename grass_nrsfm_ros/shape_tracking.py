@@ -8,6 +8,8 @@ model, frames are tracked against a rigid bootstrap model of the frames so far
 :func:`oriented_like`, or takes the one a ``depth_sign`` tells, :func:`oriented_by`), flat
 while that is ill-posed. A frame whose residual exceeds ``residual_limit`` times the median of
 the last frames' is *surprising*: the caller closes the next window early (once per model).
+Where the mapping also offered a pinhole sheet's SheetModel, each pinhole frame's depths come
+from it alone (:func:`~grass_nrsfm_ros.mapper.sheet_result`, docs/decisions/0732).
 Pure Python and numpy: no ROS.
 
 Shapes: ``ids: (P,)`` track ids, ``uv: (P, 2)`` pixels, ``xyz: (P, 3)`` camera frame in
@@ -111,8 +113,8 @@ class ShapeTracking:
 
     ``stats``: frames ``tracked``, ``bootstrap_frames``, ``fresh_windows`` (surprising frames),
     ``models`` taken, ``first_model_after`` (frames of the sequence before its first model),
-    ``tracking_failed`` (published flat); ``last``: the newest frame's residual, model age and
-    rank, and whether it was a bootstrap frame.
+    ``tracking_failed`` (published flat), ``sheet_frames`` (from a SheetModel); ``last``: the
+    newest frame's residual, model age and rank, and whether it was a bootstrap frame.
     """
 
     def __init__(self, residual_limit=3.0, depth_sign=None):
@@ -135,7 +137,7 @@ class ShapeTracking:
         self._lock = threading.Lock()
         self.last = dict(residual=None, model_age=None, model_rank=None, bootstrap=None)
         self.stats = dict(tracked=0, bootstrap_frames=0, fresh_windows=0, models=0,
-                          first_model_after=None, tracking_failed=0)
+                          first_model_after=None, tracking_failed=0, sheet_frames=0)
 
     @property
     def has_model(self):
@@ -182,7 +184,10 @@ class ShapeTracking:
         result = self._result(frame, tracked.ids, tracked.xyz)
         if self._sheet is not None and frame.pinhole:
             at = np.searchsorted(frame.ids, result.ids)
-            result = sheet_result(result, frame.uv[at], self._sheet) or result
+            sheet = sheet_result(result, frame.uv[at], self._sheet)
+            if sheet is not None:
+                result = sheet
+                self.stats['sheet_frames'] += 1
         return Tracked(result, surprising, published_depth(tracked))
 
     # -- internals ------------------------------------------------------------------------------

@@ -28,6 +28,7 @@ def test_values_account_for_every_frame_and_window():
     assert values['frames refined'] == '45' and values['frames awaiting refinement'] == '0'
     assert values['frames not refined'] == '0' and values['frames lost'] == '0'
     assert values['first model after frames'] == '30'
+    assert values['frames from a sheet model'] == '0'                # orthographic pixels
     assert values['started from'] == 'resumed'
     assert float(values['tracking latency p95 ms']) == np.percentile([1.0, 3.0], 95)
     assert 'mapping process' not in values                       # inline: no child

@@ -119,6 +119,7 @@ def live_sheet(surface, kind='bending'):
     finally:
         pipeline.close()
     later = [[r for r in results if r.stamp_ns >= stamps[20]] for results in (points, refined)]
+    assert pipeline.tracking.stats['sheet_frames'] == sum(r.signed for r in points)
     return (tuple(results_e3d(r, stamps[20:], ids, S[60:]) for r in later),
             tuple(sum(r.signed for r in results) for results in later))
 

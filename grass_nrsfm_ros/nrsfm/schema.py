@@ -193,11 +193,13 @@ SOLVER_PARAMS = (
           "'sheet': a surface that bends without stretching (paper, a mat, a sheet), from "
           'its own structure instead: through a pinhole (projection perspective) Chhatkuli '
           "et al.'s maximum-depth heuristic on the normalised tracks (tens of seconds per "
-          'sequence, offline use; docs/decisions/0709, 0440); orthographic, local-isometry '
+          'sequence offline; docs/decisions/0709, 0440; live, each frame from the lengths '
+          'the mapping rebuilds at every window, 0732); orthographic, local-isometry '
           "depths with their signs carried from frame to frame (seconds; 0714). 'auto': "
           "through a pinhole, a solve without a warm start of complete tracks is 'sheet' when "
           "the maximum-depth depths on 10 of its frames keep their edge lengths, else 'any' "
-          "(0726); orthographic, 'any'. Complete tracks only for 'sheet'."),
+          '(0726; live, checked on the first window and as the sequence doubles); '
+          "orthographic, 'any'. Complete tracks only for 'sheet'."),
     _mode('robust', 'auto', ('auto', 'never', 'cauchy'),
           "'cauchy': tracks whose residual against a low-rank approximation of all tracks, "
           "where their neighbours' agrees, or against the combination of their nearest tracks, "
