@@ -186,9 +186,9 @@ class Mapper:
     ``progress=`` and ``beta_max=``) returning ``S: (3F, P)``, ``R: (F, 3, 3)``, optional
     ``groups: (P,)`` and ``report``. ``refined_after``: each frame's results are given out
     from its first ``refined_after`` solves only (later ones cannot be published).
-    ``surface`` (the solver's): on pinhole frames, 'sheet' or 'auto' (decided once per
-    sequence by the stage ``surface`` on its first window) build a sheet model at each window
-    (:meth:`_sheet_model`, docs/decisions/0732); 'any' never.
+    ``surface`` (the solver's): on pinhole frames, 'sheet' or 'auto' (where the stage
+    ``surface`` takes the frames so far for a sheet) build a sheet model at each window after
+    a sequence's first (:meth:`_sheet_model`, docs/decisions/0732); 'any' never.
     """
 
     def __init__(self, solver_factory=None, *, min_tracks=10, warm_start='resume',
@@ -236,8 +236,9 @@ class Mapper:
     def _sheet_model(self, window):
         """The SheetModel of ``window``'s sequence: None unless its frames are pinhole and
         ``surface`` is 'sheet', or 'auto' and the stage ``surface`` takes the frames so far for
-        a sheet (checked at the first window, then whenever the sequence's frames have doubled
-        since the last check, until it does). Built anew at each window by
+        a sheet (checked at the second window, then whenever the sequence's frames have doubled
+        since the last check, until it does). None at a sequence's first window, whose model
+        must not wait for the LP. Built anew at each later window by
         :func:`fit_sheet_model` on SHEET_FRAMES frames spread over the window's context and
         frames, on the tracks all of them see; the previous model where those are too few or
         the fit fails."""
@@ -248,6 +249,8 @@ class Mapper:
         sequence, previous, seen, checked = self._sheet
         seen += len(window.fresh)
         self._sheet = (sequence, previous, seen, checked)
+        if self.started_from == 'rigid':         # a first window (or one without context)
+            return previous
         if previous is None and self.surface == 'auto' and seen < 2 * checked:
             return None
         frames = window.context + window.frames

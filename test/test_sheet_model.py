@@ -125,11 +125,12 @@ def live_sheet(surface, kind='bending'):
 
 
 def test_live_points_of_a_pinhole_sheet_come_from_its_sheet_model():
-    """surface 'sheet' with K: the 40 frames after the first window go out from the sheet
-    model, and beat the low-rank route's (measured: points 0.121 / 0.176, refined 0.044 /
-    0.194)."""
+    """surface 'sheet' with K: after the first window (whose model does not wait for the LP)
+    the frames go out from the sheet model (30 of 40 on points: from the second window's
+    model on; 40 on points/refined), and beat the low-rank route's (measured: points 0.092 /
+    0.176, refined 0.044 / 0.194)."""
     (sheet, signed), (chain, unsigned) = live_sheet('sheet'), live_sheet('any')
-    assert signed == (40, 40) and unsigned == (0, 0), (signed, unsigned)
+    assert signed == (30, 40) and unsigned == (0, 0), (signed, unsigned)
     assert sheet[0] < 0.8 * chain[0] and sheet[1] < 0.5 * chain[1], (sheet, chain)
 
 

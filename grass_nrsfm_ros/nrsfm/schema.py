@@ -198,7 +198,7 @@ SOLVER_PARAMS = (
           "depths with their signs carried from frame to frame (seconds; 0714). 'auto': "
           "through a pinhole, a solve without a warm start of complete tracks is 'sheet' when "
           "the maximum-depth depths on 10 of its frames keep their edge lengths, else 'any' "
-          '(0726; live, checked on the first window and as the sequence doubles); '
+          '(0726; live, checked on the second window and as the sequence doubles); '
           "orthographic, 'any'. Complete tracks only for 'sheet'."),
     _mode('robust', 'auto', ('auto', 'never', 'cauchy'),
           "'cauchy': tracks whose residual against a low-rank approximation of all tracks, "
