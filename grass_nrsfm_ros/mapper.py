@@ -28,7 +28,7 @@ from grass_nrsfm_ros import params
 from grass_nrsfm_ros.nrsfm import GrassmannNRSfM, WarmStart
 from grass_nrsfm_ros.nrsfm.density import fill_dropped
 from grass_nrsfm_ros.nrsfm.max_depth import REFINE_ITERATIONS
-from grass_nrsfm_ros.nrsfm.measurement import as_frames, centre, InvalidInputError, spread_frames
+from grass_nrsfm_ros.nrsfm.measurement import as_frames, centre, spread_frames
 from grass_nrsfm_ros.nrsfm.missing import fill_unseen
 from grass_nrsfm_ros.nrsfm.rotation import (choose_rank, DEFAULT_CANDIDATES, max_rank,
                                             normalised_svd, rigid_factorisation,
@@ -211,7 +211,8 @@ class Mapper:
         self._solves = (None, {})       # (sequence, {stamp: solves of that frame})
 
     def reset(self):
-        """Forget the previous solution and the rotation check (a new sequence)."""
+        """Forget the previous solution, the rotation check and the sheet model (a new
+        sequence)."""
         self.previous, self._rotation_check, self._solves = None, None, (None, {})
         self._sheet = None
 
@@ -237,8 +238,9 @@ class Mapper:
         """The SheetModel of ``window``'s sequence: None unless its frames are pinhole and
         ``surface`` is 'sheet', or 'auto' and the stage ``surface`` takes the frames so far for
         a sheet (checked at the second window, then whenever the sequence's frames have doubled
-        since the last check, until it does). None at a sequence's first window, whose model
-        must not wait for the LP. Built anew at each later window by
+        since the last check, until it does). Not built at a sequence's first window (nor any
+        started without context), whose model must not wait for the LP: the previous one then.
+        Built anew at each later window by
         :func:`fit_sheet_model` on SHEET_FRAMES frames spread over the window's context and
         frames, on the tracks all of them see; the previous model where those are too few or
         the fit fails."""
@@ -270,7 +272,7 @@ class Mapper:
                     return None
                 fitted = check.fitted
             model = fit_sheet_model(W, ids, [f.stamp_ns for f in chosen], fitted)
-        except (InvalidInputError, ValueError, np.linalg.LinAlgError):
+        except (ValueError, RuntimeError):       # degenerate frames (LinAlgError), the LP failing
             return previous
         self._sheet = (sequence, model, seen, self._sheet[3])
         return model
@@ -529,8 +531,11 @@ def sheet_result(result, uv, sheet, iterations=FRAME_ITERATIONS):
     """``result`` (a FrameResult of normalised points ``uv: (P, 2)``, its ``ids``) with the
     depths of the SheetModel ``sheet`` (:func:`frame_depths`) as relative depths ``Z / mean(Z) -
     1`` (:func:`~grass_nrsfm_ros.pipeline.pinhole_points` takes them through the pinhole),
-    ``signed``; None where the model does not reach the frame."""
-    Z = frame_depths(sheet, result.ids, uv, iterations)
+    ``signed``; None where the model does not reach the frame or its frame is degenerate."""
+    try:
+        Z = frame_depths(sheet, result.ids, uv, iterations)
+    except ValueError:                  # a singular frame (LinAlgError), bad points
+        return None
     if Z is None or not np.isfinite(Z).all() or Z.mean() <= 0.0:
         return None
     xyz = np.column_stack([uv - uv.mean(axis=0), Z / Z.mean() - 1.0])

@@ -209,9 +209,11 @@ class LivePipeline:
     def _choose_sign(self, update):
         """The depth sign of ``update``'s sequence, once: from the frames of its first solved
         window with K whose depths are not flat (:func:`flat_depths`: the next window decides
-        then), by :func:`low_rank_sign` on their common tracks."""
+        then), by :func:`low_rank_sign` on their common tracks; never from a sheet model's
+        results (``signed``)."""
         frames = [(r, self._rays[r.stamp_ns]) for r in update.results
-                  if r.stamp_ns in self._rays and self._rays[r.stamp_ns][2] == update.sequence]
+                  if r.stamp_ns in self._rays and self._rays[r.stamp_ns][2] == update.sequence
+                  and not r.signed]
         if len(frames) < SIGN_FRAMES:
             return
         common = frames[0][0].ids

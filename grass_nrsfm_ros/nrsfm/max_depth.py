@@ -200,7 +200,8 @@ def largest_depths(W, edges, lengths, *, max_rounds=None):
 def refined_depths(W, Z, d, edges, *, max_iterations=REFINE_ITERATIONS, tol=REFINE_TOL):
     """``(F, P)`` depths of the normalised tracks ``W: (2F, P)``: per frame, the least-squares
     fit of the edge lengths ``d: (E,)`` as equalities over ``edges = (i, j)``, ``min_Z sum_e
-    (||Z_i q_i - Z_j q_j|| - d_e)^2``, started from ``Z: (F, P)`` (the LP's depths).
+    (||Z_i q_i - Z_j q_j|| - d_e)^2``, started from ``Z: (F, P)`` (the LP's or the largest
+    depths).
     Levenberg-Marquardt on every frame at once (each frame's normal matrix ``(P, P)``, its
     damping per frame); a frame stops when its cost or its step changes by at most ``tol``
     relative, or after ``max_iterations``."""
@@ -228,7 +229,7 @@ def refined_depths(W, Z, d, edges, *, max_iterations=REFINE_ITERATIONS, tol=REFI
                         minlength=m * P).reshape(m, P)
         h = H[:, diagonal, diagonal]
         H[:, diagonal, diagonal] += damping[f, None] * np.maximum(
-            h, 1e-12 * h.max(axis=1, keepdims=True))
+            h, 1e-12 * h.max(axis=1, keepdims=True) + 1e-300)      # never exactly singular
         step = np.linalg.solve(H, g[..., None])[..., 0]
         Z_new = Z[f] - step
         v_new, n_new = _edge_vectors(Z_new, qi, qj, i, j)

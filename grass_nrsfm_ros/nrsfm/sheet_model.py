@@ -16,6 +16,8 @@ scale: the lengths sum to 1).
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from .max_depth import largest_depths, MaxDepthNRSfM, NEIGHBOURS, plane_depths, refined_depths
@@ -52,30 +54,35 @@ def fit_sheet_model(W, ids, stamps, result=None):
 def frame_depths(model, ids, xy, iterations=FRAME_ITERATIONS):
     """``Z: (P,)`` depths of one frame's tracks ``ids: (P,)`` (sorted) at normalised points
     ``xy: (P, 2)`` from the :class:`SheetModel` (see the module docstring; ``iterations``: of
-    the refinement), or None where the frame sees fewer than MIN_ANCHORS of its anchors joined
-    by an edge."""
+    the refinement), or None where the largest connected group of its anchors that the frame
+    sees (joined by the model's edges) has fewer than MIN_ANCHORS."""
     ids = np.asarray(ids)
-    seen, mine, theirs = np.intersect1d(model.ids, ids, assume_unique=True,
-                                        return_indices=True)
-    if seen.size < MIN_ANCHORS:
+    _, in_model, in_frame = np.intersect1d(model.ids, ids, assume_unique=True,
+                                           return_indices=True)
+    if in_model.size < MIN_ANCHORS:
         return None
-    where = np.full(model.ids.size, -1)
-    where[mine] = np.arange(mine.size)
-    i, j = (where[np.asarray(e)] for e in model.edges)
-    kept = (i >= 0) & (j >= 0)
-    i, j, d = i[kept], j[kept], model.lengths[kept]
-    joined = np.unique(np.r_[i, j])
-    if joined.size < MIN_ANCHORS:
+    seen_at = np.full(model.ids.size, -1)
+    seen_at[in_model] = np.arange(in_model.size)
+    i, j = (seen_at[np.asarray(e)] for e in model.edges)
+    both = (i >= 0) & (j >= 0)
+    i, j, d = i[both], j[both], model.lengths[both]
+    n = in_model.size
+    _, group = connected_components(sp.coo_matrix((np.ones(i.size), (i, j)), shape=(n, n)),
+                                    directed=False)
+    largest = group == np.bincount(group).argmax()
+    if largest.sum() < MIN_ANCHORS or not largest[i].any():
         return None
-    renumber = np.full(mine.size, -1)
-    renumber[joined] = np.arange(joined.size)
-    edges = (renumber[i], renumber[j])
-    anchors = theirs[joined]                                    # indices into ids
-    x = np.asarray(xy, dtype=np.float64)[anchors].T            # (2, n)
-    Z_a = largest_depths(x, edges, d)
-    if iterations:
-        Z_a = refined_depths(x, Z_a, d, edges, max_iterations=iterations)
+    inside = largest[i]
+    renumber = np.cumsum(largest) - 1
+    edges = (renumber[i[inside]], renumber[j[inside]])
+    anchors = in_frame[largest]                                 # indices into ids
     points = np.asarray(xy, dtype=np.float64)
+    Z_a = largest_depths(points[anchors].T, edges, d[inside])
+    if iterations:
+        Z_a = refined_depths(points[anchors].T, Z_a, d[inside], edges,
+                             max_iterations=iterations)
+    if not np.isfinite(Z_a).all():
+        return None
     k = min(NEIGHBOURS, anchors.size)
     _, near = cKDTree(points[anchors]).query(points, k=k)
     Z = plane_depths(points[None], anchors, Z_a, near.reshape(len(points), k))[0]
