@@ -37,7 +37,7 @@ from grass_nrsfm_ros.nrsfm.sheet_model import fit_sheet_model, frame_depths, FRA
 from grass_nrsfm_ros.nrsfm.solver import one_blas_thread
 from grass_nrsfm_ros.nrsfm.stages import surface as surface_stage
 from grass_nrsfm_ros.nrsfm.tracking import build_model
-from grass_nrsfm_ros.windowing import common_ids, window_matrix
+from grass_nrsfm_ros.windowing import common_ids, ids_in_every, window_matrix
 
 #: fewest tracks a window may be solved on when ``mapping_tracks`` caps them
 MIN_MAPPING_TRACKS = 100
@@ -257,9 +257,7 @@ class Mapper:
             return None
         frames = window.context + window.frames
         chosen = [frames[k] for k in spread_frames(len(frames), SHEET_FRAMES)]
-        ids = chosen[0].ids
-        for frame in chosen[1:]:
-            ids = common_ids(ids, frame.ids)
+        ids = ids_in_every(chosen)
         if ids.size < surface_stage.MIN_POINTS:
             return previous
         W = window_matrix(chosen, ids)

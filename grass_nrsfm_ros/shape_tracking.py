@@ -25,7 +25,7 @@ from grass_nrsfm_ros.mapper import DEPTH_FLIP, FrameResult, sheet_result
 from grass_nrsfm_ros.nrsfm.measurement import centre, InvalidInputError
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation, rigid_world_shape
 from grass_nrsfm_ros.nrsfm.tracking import fit_subset, rigid_model, Tracker
-from grass_nrsfm_ros.windowing import common_ids, window_matrix
+from grass_nrsfm_ros.windowing import ids_in_every, window_matrix
 
 #: a bootstrap model is rebuilt from the frames so far when their count reaches each of these
 BOOTSTRAP_AT = (3, 6, 12, 24, 48)
@@ -59,9 +59,7 @@ def bootstrap_model(frames):
     depth is ill-posed (spread beyond BOOTSTRAP_DEPTH_LIMIT times the image spread). The
     rotations and the depth check come from at most FIT_TRACKS of the tracks, the shape of
     every track from those rotations."""
-    ids = frames[0].ids
-    for f in frames[1:]:
-        ids = common_ids(ids, f.ids)
+    ids = ids_in_every(frames)
     if len(frames) < BOOTSTRAP_AT[0] or ids.size < 4:
         return None
     W, _ = centre(window_matrix(frames, ids))

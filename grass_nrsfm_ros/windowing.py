@@ -35,6 +35,7 @@ a sequence's first, takes that orientation).
 from bisect import bisect_left
 from collections import deque
 from dataclasses import dataclass
+from functools import reduce
 import time
 
 import numpy as np
@@ -128,6 +129,11 @@ def common_ids(a, b):
     """The ids in both sorted unique id arrays ``a`` and ``b`` (``a`` itself when they are equal:
     the usual case, with no set operation)."""
     return a if np.array_equal(a, b) else np.intersect1d(a, b, assume_unique=True)
+
+
+def ids_in_every(frames):
+    """The sorted ids of the tracks every one of ``frames`` (Frames) has."""
+    return reduce(common_ids, (f.ids for f in frames[1:]), frames[0].ids)
 
 
 def window_matrix(frames, ids):
