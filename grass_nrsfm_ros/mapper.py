@@ -28,16 +28,16 @@ from grass_nrsfm_ros import params
 from grass_nrsfm_ros.nrsfm import GrassmannNRSfM, WarmStart
 from grass_nrsfm_ros.nrsfm.density import fill_dropped
 from grass_nrsfm_ros.nrsfm.max_depth import REFINE_ITERATIONS
-from grass_nrsfm_ros.nrsfm.measurement import as_frames, centre, spread_frames
+from grass_nrsfm_ros.nrsfm.measurement import as_frames, centre
 from grass_nrsfm_ros.nrsfm.missing import fill_unseen
 from grass_nrsfm_ros.nrsfm.rotation import (choose_rank, DEFAULT_CANDIDATES, max_rank,
                                             normalised_svd, rigid_factorisation,
                                             rotations_from_start)
-from grass_nrsfm_ros.nrsfm.sheet_model import fit_sheet_model, frame_depths, FRAME_ITERATIONS
+from grass_nrsfm_ros.nrsfm.sheet_model import frame_points
 from grass_nrsfm_ros.nrsfm.solver import one_blas_thread
-from grass_nrsfm_ros.nrsfm.stages import surface as surface_stage
 from grass_nrsfm_ros.nrsfm.tracking import build_model
-from grass_nrsfm_ros.windowing import common_ids, ids_in_every, window_matrix
+from grass_nrsfm_ros.sheet_mapping import SheetMapping
+from grass_nrsfm_ros.windowing import common_ids, window_matrix
 
 #: fewest tracks a window may be solved on when ``mapping_tracks`` caps them
 MIN_MAPPING_TRACKS = 100
@@ -59,8 +59,6 @@ FIRST_WINDOW_BETA_MAX = 1.0
 #: 0802)
 WINDOW_REFILL_ROUNDS = 0
 DEPTH_FLIP = np.diag([1.0, 1.0, -1.0])
-#: frames (spread over a window's context and frames) a sheet model's lengths come from
-SHEET_FRAMES = 10
 
 
 class WindowError(ValueError):
@@ -186,9 +184,8 @@ class Mapper:
     ``progress=`` and ``beta_max=``) returning ``S: (3F, P)``, ``R: (F, 3, 3)``, optional
     ``groups: (P,)`` and ``report``. ``refined_after``: each frame's results are given out
     from its first ``refined_after`` solves only (later ones cannot be published).
-    ``surface`` (the solver's): on pinhole frames, 'sheet' or 'auto' (where the stage
-    ``surface`` takes the frames so far for a sheet) build a sheet model at each window after
-    a sequence's first (:meth:`_sheet_model`, docs/decisions/0732); 'any' never.
+    ``surface`` (the solver's): which pinhole sequences get a sheet model
+    (:class:`~grass_nrsfm_ros.sheet_mapping.SheetMapping`, docs/decisions/0732).
     """
 
     def __init__(self, solver_factory=None, *, min_tracks=10, warm_start='resume',
@@ -202,8 +199,7 @@ class Mapper:
         self.min_tracks, self.warm_start = int(min_tracks), warm_start
         self.context_frames, self.mapping_tracks = int(context_frames), int(mapping_tracks)
         self.refined_after = int(refined_after)
-        self.surface = surface
-        self._sheet = None              # (sequence, SheetModel or None, frames, at check)
+        self.sheets = SheetMapping(surface)
         self.previous = None            # Solution of the last solved window
         self._rotation_check = None     # (sequence, method, stamps) of the last full check
         self._resumed_rank = None       # Dai's rank of the rotations a resumed start gave
@@ -214,7 +210,7 @@ class Mapper:
         """Forget the previous solution, the rotation check and the sheet model (a new
         sequence)."""
         self.previous, self._rotation_check, self._solves = None, None, (None, {})
-        self._sheet = None
+        self.sheets.reset()
 
     def solve(self, window, progress=None):
         """Solve ``window`` with its context: an Update 'solved' (or 'released', see
@@ -228,52 +224,10 @@ class Mapper:
             problem, S, Z, flipped, seen = self._solve(window, progress)
             model = build_model(self.previous.S, self.previous.R, self.previous.ids,
                                 self.previous.stamps)
-            sheet = self._sheet_model(window)
+            sheet = self.sheets.update(window, first=self.started_from == 'rigid')
             results = () if window.preview else self._results(problem, S, Z, seen, sheet)
         return Update.of(window, 'solved', results=results, flipped=flipped, model=model,
                          sheet=sheet, figures=self._figures(time.monotonic() - started))
-
-    # -- a sheet's model ------------------------------------------------------------------------
-    def _sheet_model(self, window):
-        """The SheetModel of ``window``'s sequence: None unless its frames are pinhole and
-        ``surface`` is 'sheet', or 'auto' and the stage ``surface`` takes the frames so far for
-        a sheet (checked at the second window, then whenever the sequence's frames have doubled
-        since the last check, until it does). Not built at a sequence's first window (nor any
-        started without context), whose model must not wait for the LP: the previous one then.
-        Built anew at each later window by
-        :func:`fit_sheet_model` on SHEET_FRAMES frames spread over the window's context and
-        frames, on the tracks all of them see; the previous model where those are too few or
-        the fit fails."""
-        if self.surface == 'any' or not window.frames[-1].pinhole:
-            return None
-        if self._sheet is None or self._sheet[0] != window.sequence:
-            self._sheet = (window.sequence, None, 0, 0)
-        sequence, previous, seen, checked = self._sheet
-        seen += len(window.fresh)
-        self._sheet = (sequence, previous, seen, checked)
-        if self.started_from == 'rigid':         # a first window (or one without context)
-            return previous
-        if previous is None and self.surface == 'auto' and seen < 2 * checked:
-            return None
-        frames = window.context + window.frames
-        chosen = [frames[k] for k in spread_frames(len(frames), SHEET_FRAMES)]
-        ids = ids_in_every(chosen)
-        if ids.size < surface_stage.MIN_POINTS:
-            return previous
-        W = window_matrix(chosen, ids)
-        try:
-            fitted = None
-            if previous is None and self.surface == 'auto':
-                check = surface_stage.check(W)
-                self._sheet = (sequence, None, seen, seen)
-                if not check.sheet:
-                    return None
-                fitted = check.fitted
-            model = fit_sheet_model(W, ids, [f.stamp_ns for f in chosen], fitted)
-        except (ValueError, RuntimeError):       # degenerate frames (LinAlgError), the LP failing
-            return previous
-        self._sheet = (sequence, model, seen, self._sheet[3])
-        return model
 
     # -- one solve ------------------------------------------------------------------------------
     def _solve(self, window, progress):
@@ -342,7 +296,8 @@ class Mapper:
     def _results(self, problem, XY, Z, seen, sheet=None):
         """FrameResults of the frames of ``problem`` solved at most ``refined_after`` times
         (this solve counted), each on the tracks it sees (``seen: (F, P)``); from the
-        ``sheet`` model (:func:`sheet_result`) where there is one and it reaches the frame."""
+        ``sheet`` model (:func:`~grass_nrsfm_ros.nrsfm.sheet_model.frame_points`, refined to
+        convergence) where there is one and it reaches the frame."""
         if self._solves[0] != problem.sequence:
             self._solves = (problem.sequence, {})
         solves = self._solves[1]
@@ -357,7 +312,9 @@ class Mapper:
                 result = FrameResult(stamp, problem.frame_ids[i], ids, xyz)
                 if sheet is not None:
                     uv = problem.W[2 * i:2 * i + 2, seen[i]].T
-                    result = sheet_result(result, uv, sheet, REFINE_ITERATIONS) or result
+                    xyz = frame_points(sheet, ids, uv, REFINE_ITERATIONS)
+                    if xyz is not None:
+                        result = replace(result, xyz=xyz, signed=True)
                 out.append(result)
         return tuple(out)
 
@@ -523,21 +480,6 @@ class Mapper:
         if method == 'rigid':
             return 1
         return self._resumed_rank if method == 'given' and init is not None else None
-
-
-def sheet_result(result, uv, sheet, iterations=FRAME_ITERATIONS):
-    """``result`` (a FrameResult of normalised points ``uv: (P, 2)``, its ``ids``) with the
-    depths of the SheetModel ``sheet`` (:func:`frame_depths`) as relative depths ``Z / mean(Z) -
-    1`` (:func:`~grass_nrsfm_ros.pipeline.pinhole_points` takes them through the pinhole),
-    ``signed``; None where the model does not reach the frame or its frame is degenerate."""
-    try:
-        Z = frame_depths(sheet, result.ids, uv, iterations)
-    except ValueError:                  # a singular frame (LinAlgError), bad points
-        return None
-    if Z is None or not np.isfinite(Z).all() or Z.mean() <= 0.0:
-        return None
-    xyz = np.column_stack([uv - uv.mean(axis=0), Z / Z.mean() - 1.0])
-    return replace(result, xyz=xyz, signed=True)
 
 
 def rigid_start(W):

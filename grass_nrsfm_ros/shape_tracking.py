@@ -9,7 +9,7 @@ model, frames are tracked against a rigid bootstrap model of the frames so far
 while that is ill-posed. A frame whose residual exceeds ``residual_limit`` times the median of
 the last frames' is *surprising*: the caller closes the next window early (once per model).
 Where the mapping also offered a pinhole sheet's SheetModel, each pinhole frame's depths come
-from it alone (:func:`~grass_nrsfm_ros.mapper.sheet_result`, docs/decisions/0732).
+from it alone (:func:`~grass_nrsfm_ros.nrsfm.sheet_model.frame_points`, docs/decisions/0732).
 Pure Python and numpy: no ROS.
 
 Shapes: ``ids: (P,)`` track ids, ``uv: (P, 2)`` pixels, ``xyz: (P, 3)`` camera frame in
@@ -21,9 +21,10 @@ import threading
 
 import numpy as np
 
-from grass_nrsfm_ros.mapper import DEPTH_FLIP, FrameResult, sheet_result
+from grass_nrsfm_ros.mapper import DEPTH_FLIP, FrameResult
 from grass_nrsfm_ros.nrsfm.measurement import centre, InvalidInputError
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation, rigid_world_shape
+from grass_nrsfm_ros.nrsfm.sheet_model import frame_points
 from grass_nrsfm_ros.nrsfm.tracking import fit_subset, rigid_model, Tracker
 from grass_nrsfm_ros.windowing import ids_in_every, window_matrix
 
@@ -145,8 +146,8 @@ class ShapeTracking:
     def offer(self, sequence, model, sheet=None):
         """The mapping's newest ``model`` of ``sequence`` (and its ``sheet``, a SheetModel, or
         None): the next frame of that sequence is tracked against it; where a sheet model is
-        held, each pinhole frame's depths are the sheet's (:func:`~grass_nrsfm_ros.mapper.
-        sheet_result`)."""
+        held, each pinhole frame's depths are the sheet's (:func:`~grass_nrsfm_ros.nrsfm.
+        sheet_model.frame_points`)."""
         with self._lock:
             self._waiting = (sequence, model, sheet)
         self.stats['models'] += 1
@@ -182,9 +183,9 @@ class ShapeTracking:
         result = self._result(frame, tracked.ids, tracked.xyz)
         if self._sheet is not None and frame.pinhole:
             at = np.searchsorted(frame.ids, result.ids)
-            sheet = sheet_result(result, frame.uv[at], self._sheet)
-            if sheet is not None:
-                result = sheet
+            xyz = frame_points(self._sheet, result.ids, frame.uv[at])
+            if xyz is not None:
+                result = replace(result, xyz=xyz, signed=True)
                 self.stats['sheet_frames'] += 1
         return Tracked(result, surprising, published_depth(tracked))
 

@@ -7,11 +7,12 @@ equalities (:func:`.max_depth.refined_depths`), and every other track the depth 
 through its nearest anchors in that frame's image (:func:`.max_depth.plane_depths`). That is
 what a live pipeline needs: :func:`fit_sheet_model` on frames so far (the mapping), then
 :func:`frame_depths` on each frame as it arrives (the tracking), whatever subset of the
-tracks it sees (docs/decisions/0732).
+tracks it sees (docs/decisions/0732); :func:`frame_points` gives them as the pipeline's
+results carry them.
 
 Shapes: ``W: (2F, P)`` normalised pinhole tracks (rows ``2f, 2f+1``: x, y), ``ids: (P,)``
 track ids, ``xy: (P, 2)`` one frame's normalised points, ``Z: (P,)`` its depths (the model's
-scale: the lengths sum to 1).
+scale: the lengths sum to 1), ``xyz: (P, 3)`` its centred points and relative depths.
 """
 from dataclasses import dataclass
 
@@ -88,3 +89,19 @@ def frame_depths(model, ids, xy, iterations=FRAME_ITERATIONS):
     Z = plane_depths(points[None], anchors, Z_a, near.reshape(len(points), k))[0]
     Z[anchors] = Z_a[0]
     return Z
+
+
+def frame_points(model, ids, xy, iterations=FRAME_ITERATIONS):
+    """``xyz: (P, 3)``: one frame's normalised points ``xy: (P, 2)`` less their mean, and the
+    relative depths ``Z / mean(Z) - 1`` of :func:`frame_depths` (the form of the pipeline's
+    results, which :func:`~grass_nrsfm_ros.pipeline.pinhole_points` takes through the
+    pinhole); None where the model does not reach the frame, or the frame is degenerate (a
+    singular refinement, non-finite or non-positive depths)."""
+    points = np.asarray(xy, dtype=np.float64)
+    try:
+        Z = frame_depths(model, ids, points, iterations)
+    except ValueError:                  # a singular frame (LinAlgError), bad points
+        return None
+    if Z is None or not np.isfinite(Z).all() or Z.mean() <= 0.0:
+        return None
+    return np.column_stack([points - points.mean(axis=0), Z / Z.mean() - 1.0])
