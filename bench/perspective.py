@@ -125,6 +125,7 @@ def case(name, S, W_px, K, config=None, draws=0):
                                           'stopped': 'no iteration: ' + report['stages'][-1]}
     row['rounds'] = iteration['rounds']
     row['kept'], row['stopped'] = iteration['kept'], iteration['stopped']
+    row['depth_scale'] = iteration.get('depth_scale')
     if 'e3d_orthographic_projection' in row:
         row['ratio_to_orthographic'] = row['e3d_perspective'] / row['e3d_orthographic_projection']
         row['first_solve_ratio'] = row['e3d_first_solve_S'] / row['e3d_orthographic_projection']

@@ -355,13 +355,14 @@ def kinect_paper_table(doc):
 
 def perspective_table(doc):
     lines = ['| sequence | F x P | orthographic projections | first solve | perspective '
-             '(reconstruct + K) | rigid | perspective / orthographic | the same over draws of '
-             "the tracks' rounding: median (range, draws) |",
-             '|---|---|---|---|---|---|---|---|']
+             '(reconstruct + K) | depth scale (record 0733) | rigid | perspective / orthographic '
+             "| the same over draws of the tracks' rounding: median (range, draws) |",
+             '|---|---|---|---|---|---|---|---|---|']
     for r in doc['rows']:
         lines.append(f"| {r['sequence']} | {r.get('F', '-')} x {r.get('P', '-')} | "
                      f"{fmt(r.get('e3d_orthographic_projection'))} | "
                      f"{fmt(r.get('e3d_first_solve_S'))} | {fmt(r.get('e3d_perspective'))} | "
+                     f"{fmt(r.get('depth_scale'), 3)} | "
                      f"{fmt(r.get('e3d_rigid'))} | {fmt(r.get('ratio_to_orthographic'), 3)} | "
                      f"{over_draws(r.get('ratio_draws'))} |")
     return lines

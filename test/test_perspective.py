@@ -9,7 +9,8 @@ from grass_nrsfm_ros.nrsfm import camera, metrics, synthetic
 from grass_nrsfm_ros.nrsfm.measurement import (as_frames, from_frames, InvalidInputError,
                                                to_camera)
 from grass_nrsfm_ros.nrsfm.perspective import (camera_frame_shapes, centred_depths,
-                                               fit_perspective, PerspectiveNRSfM)
+                                               depth_scale, fit_perspective,
+                                               PerspectiveNRSfM, rigid_residual)
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
 
 
@@ -226,3 +227,46 @@ def test_rendered_faces_keep_the_true_depth_sign(seed):
     truth = centred_depths(S)
     for r in result.rounds:
         assert (np.einsum('fp,fp->f', r.delta, truth) > 0).all(), (r.index, result.report())
+
+
+def relative_depths(S):
+    """``(F, P)``: each frame's depths of ``S: (3F, P)`` over their mean, less 1."""
+    Z = as_frames(S, 3)[:, 2, :]
+    return Z / Z.mean(axis=1, keepdims=True) - 1.0
+
+
+def test_rigid_residual_is_zero_for_a_rigid_shape_at_any_distance():
+    """One shape turned by an orbit's rotations and sized differently per frame (its distance
+    changes) is rigid: residual 0; the bending sheet's frames are not (measured 0.018)."""
+    seq = synthetic.make_sequence('bending', n_frames=20, n_points=100, seed=0)
+    X = np.random.default_rng(0).standard_normal((3, 100))
+    S = from_frames(np.stack([(1 + 0.1 * f) * seq.R[f] @ X for f in range(20)]))
+    assert rigid_residual(S) < 1e-20
+    assert rigid_residual(seq.S) > 0.01
+
+
+@pytest.mark.data
+def test_depth_scale_undoes_a_flattening_of_a_turning_face():
+    """Record 0733: the true relative depths of a rendered face through the pinhole,
+    flattened by 0.9 / 0.8 / 0.7, are scaled back by 1.1 / 1.225 / 1.4 (within 0.04 of the
+    inverse); the true depths keep 1."""
+    from bench.perspective import face_shapes
+    from grass_nrsfm_ros.frontend.scenes import pinhole
+    S = face_shapes(20, 200, seed=0)
+    if S is None:
+        pytest.skip('Surrey face model not found (set GRASS_NRSFM_DATA)')
+    K = pinhole()
+    x = camera.normalise(camera.project(S, K), K)
+    delta = relative_depths(S)
+    assert depth_scale(x, delta) == 1.0
+    for flattening in (0.9, 0.8, 0.7):
+        assert abs(flattening * depth_scale(x, flattening * delta) - 1.0) < 0.04, flattening
+
+
+@pytest.mark.parametrize('kind', ['waving', 'bending'])
+def test_depth_scale_leaves_a_bending_surface_as_it_is(kind):
+    """A surface with no rigid core: the rigid residual only grows with the depth, so even
+    its depths flattened by 0.8 keep the factor 1."""
+    from bench.perspective import pinhole_sheet
+    W, S = pinhole_sheet(kind, 20, 200, seed=0)
+    assert depth_scale(W, relative_depths(S)) == depth_scale(W, 0.8 * relative_depths(S)) == 1

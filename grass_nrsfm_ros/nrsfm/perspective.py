@@ -24,6 +24,12 @@ from the reconstruction's centred depths; solve on ``x (1 + delta)``; repeat.
   :func:`depth_change`), or after ``max_rounds`` rounds. A rise of the residual does not stop
   it: the rounds do not converge, each solve lands anywhere in a wide band, and the round of
   lowest residual over all of them is returned (docs/decisions/0707).
+* Depth scale. The solves flatten depth (their relative depths regress on the truth's with a
+  slope of 0.78-0.94). The kept round's ``delta`` is multiplied by the factor ``c`` in
+  DEPTH_SCALES (from 1 up) whose camera-frame shapes are most nearly one rigid shape under
+  the pinhole (:func:`rigid_residual`): the head turns of a face fix its relief as they fix a
+  rigid body's. Where the residual only grows with ``c`` (a cloth, a surface with no rigid
+  core) ``c`` stays 1 (:func:`depth_scale`, docs/decisions/0733).
 
 Output, in the camera frame and consistent with the pinhole: ``Z = scale (1 + delta)``,
 ``X = Z x``, ``Y = Z y``, so ``S`` projects exactly onto the given ``x``. The monocular scale
@@ -37,7 +43,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .measurement import as_frames, from_frames, InvalidInputError, validate_tracks
+from .measurement import (as_frames, from_frames, InvalidInputError, nearest_rotation,
+                          validate_tracks)
 
 #: rounds of the iteration (the first orthographic solve is round 0); all are run (no stop at
 #: a rise of the residual) and the lowest residual's kept (docs/decisions/0707, 0727)
@@ -49,6 +56,10 @@ MIN_RELATIVE_DEPTH = 0.1
 #: a solve whose centred depths' RMS is below this fraction of the tracks' RMS spread
 #: returned a flat shape (tshirt10's second round: exactly zero depths): the round is void
 FLAT_DEPTHS = 1e-6
+#: factors the kept round's relative depths may be scaled by (docs/decisions/0733)
+DEPTH_SCALES = np.round(np.arange(1.0, 1.5 + 1e-9, 0.025), 3)
+#: generalised Procrustes rounds of :func:`rigid_residual`
+RIGID_ITERATIONS = 10
 
 
 @dataclass
@@ -79,6 +90,7 @@ class PerspectiveResult:
     stopped: str = ''
     scale: float = 1.0
     clamped: int = 0
+    depth_scale: float = 1.0
 
     @property
     def residuals(self):
@@ -88,7 +100,7 @@ class PerspectiveResult:
     def report(self):
         """The iteration as plain JSON types."""
         return {'kept': self.kept, 'stopped': self.stopped, 'scale': self.scale,
-                'clamped_points': self.clamped,
+                'depth_scale': self.depth_scale, 'clamped_points': self.clamped,
                 'rounds': [{'index': r.index, 'residual': r.residual, 'change': r.change,
                             'flipped_frames': int((r.sign < 0).sum())}
                            for r in self.rounds]}
@@ -166,6 +178,31 @@ def low_rank_sign(x, delta, rank=3):
     return 1.0 if residuals[0] <= residuals[1] else -1.0
 
 
+def rigid_residual(S, iterations=RIGID_ITERATIONS):
+    """How far the frames of ``S: (3F, P)`` are from one rigid shape: each frame centred and
+    of unit Frobenius norm, the mean over frames of its squared distance to their common
+    shape after its best rotation and scale (generalised Procrustes analysis from the first
+    frame's shape, ``iterations`` rounds)."""
+    X = as_frames(np.asarray(S, dtype=np.float64), 3)
+    X = X - X.mean(axis=2, keepdims=True)
+    X = X / np.maximum(np.linalg.norm(X, axis=(1, 2), keepdims=True), 1e-300)
+    shape = X[0]
+    for _ in range(iterations):
+        aligned = nearest_rotation(np.einsum('ip,fjp->fij', shape, X)) @ X
+        shape = aligned.mean(axis=0)
+        shape = shape / max(np.linalg.norm(shape), 1e-300)
+    size = np.einsum('fip,ip->f', aligned, shape)
+    return float(np.mean(np.sum((aligned - size[:, None, None] * shape) ** 2, axis=(1, 2))))
+
+
+def depth_scale(x, delta, scales=DEPTH_SCALES):
+    """The factor among ``scales`` (the first on a tie) whose relative depths ``c delta``
+    (``delta: (F, P)``) of the normalised tracks ``x: (2F, P)`` give the camera-frame shapes
+    of least :func:`rigid_residual`."""
+    residuals = [rigid_residual(camera_frame_shapes(x, c * delta)) for c in scales]
+    return float(scales[int(np.argmin(residuals))])
+
+
 def camera_frame_shapes(x, delta, scale=1.0):
     """``S: (3F, P)``: ``Z = scale (1 + delta)``, ``X = Z x``, ``Y = Z y`` of normalised tracks
     ``x: (2F, P)`` and relative depths ``delta: (F, P)``."""
@@ -182,17 +219,20 @@ class PerspectiveNRSfM:
     ``max_rounds``: rounds after the first orthographic solve (0: that solve only, its
     depths taken as relative depths); ``tol``: relative change of the depths that stops the
     iteration; ``scale``: each frame's mean depth in the output (the unknown monocular
-    scale)."""
+    scale); ``rescale_depths``: the kept depths scaled by :func:`depth_scale` (the module
+    docstring)."""
 
-    def __init__(self, solver=None, max_rounds=MAX_ROUNDS, tol=TOL, scale=1.0):
+    def __init__(self, solver=None, max_rounds=MAX_ROUNDS, tol=TOL, scale=1.0,
+                 rescale_depths=True):
         self.solver = solver
         self.max_rounds = max_rounds
         self.tol = tol
         self.scale = scale
+        self.rescale_depths = rescale_depths
 
     def get_params(self, deep=True):
         return {'solver': self.solver, 'max_rounds': self.max_rounds, 'tol': self.tol,
-                'scale': self.scale}
+                'scale': self.scale, 'rescale_depths': self.rescale_depths}
 
     def set_params(self, **params):
         for name, value in params.items():
@@ -213,6 +253,8 @@ class PerspectiveNRSfM:
             if isinstance(value, bool) or not isinstance(value, (int, float, np.number)) or \
                     not np.isfinite(value) or value <= 0:
                 raise InvalidInputError(f'{name}={value!r}: expected a finite number > 0')
+        if not isinstance(self.rescale_depths, (bool, np.bool_)):
+            raise InvalidInputError(f'rescale_depths={self.rescale_depths!r}: expected a bool')
         if self.solver is None:
             from .solver import GrassmannNRSfM
             return GrassmannNRSfM(), int(rounds), float(tol), float(scale)
@@ -248,10 +290,12 @@ class PerspectiveNRSfM:
                 break
             delta = new
         _, kept, delta, result = best
+        factor = depth_scale(x, delta) if self.rescale_depths else 1.0
+        delta = factor * delta
         clamped = int((1.0 + delta < MIN_RELATIVE_DEPTH).sum())
         return PerspectiveResult(S=camera_frame_shapes(x, delta, scale), delta=delta,
                                  result=result, kept=kept, rounds=rounds, stopped=stopped,
-                                 scale=scale, clamped=clamped)
+                                 scale=scale, clamped=clamped, depth_scale=factor)
 
     @staticmethod
     def _round(solver, x, delta, index):
@@ -268,6 +312,8 @@ class PerspectiveNRSfM:
         return record, new, result
 
 
-def fit_perspective(W, solver=None, *, max_rounds=MAX_ROUNDS, tol=TOL, scale=1.0):
+def fit_perspective(W, solver=None, *, max_rounds=MAX_ROUNDS, tol=TOL, scale=1.0,
+                    rescale_depths=True):
     """:meth:`PerspectiveNRSfM.fit` of the normalised tracks ``W: (2F, P)`` in one call."""
-    return PerspectiveNRSfM(solver, max_rounds=max_rounds, tol=tol, scale=scale).fit(W)
+    return PerspectiveNRSfM(solver, max_rounds=max_rounds, tol=tol, scale=scale,
+                            rescale_depths=rescale_depths).fit(W)
