@@ -41,7 +41,7 @@ from grass_nrsfm_ros.nrsfm.camera import validate_intrinsics, warn_orthographic
 from grass_nrsfm_ros.nrsfm.perspective import flat_depths, low_rank_sign, MIN_RELATIVE_DEPTH
 from grass_nrsfm_ros.refinement import Refinement
 from grass_nrsfm_ros.shape_tracking import ShapeTracking
-from grass_nrsfm_ros.windowing import FrameError, Windowing
+from grass_nrsfm_ros.windowing import FrameError, ids_in_every, Windowing
 
 #: tracking latencies kept for the percentiles
 LATENCY_WINDOW = 300
@@ -216,9 +216,7 @@ class LivePipeline:
                   and not r.signed]
         if len(frames) < SIGN_FRAMES:
             return
-        common = frames[0][0].ids
-        for r, _ in frames[1:]:
-            common = np.intersect1d(common, r.ids, assume_unique=True)
+        common = ids_in_every([r for r, _ in frames])
         if common.size < 4:
             return
         x, delta = [], []

@@ -132,7 +132,8 @@ def common_ids(a, b):
 
 
 def ids_in_every(frames):
-    """The sorted ids of the tracks every one of ``frames`` (Frames) has."""
+    """The sorted ids of the tracks every one of ``frames`` (Frames, or FrameResults: anything
+    with sorted ``ids``) has."""
     return reduce(common_ids, (f.ids for f in frames[1:]), frames[0].ids)
 
 
