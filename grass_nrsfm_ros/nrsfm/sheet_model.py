@@ -71,17 +71,17 @@ def frame_depths(model, ids, xy, iterations=FRAME_ITERATIONS):
     _, group = connected_components(sp.coo_matrix((np.ones(i.size), (i, j)), shape=(n, n)),
                                     directed=False)
     largest = group == np.bincount(group).argmax()
-    if largest.sum() < MIN_ANCHORS or not largest[i].any():
+    if largest.sum() < MIN_ANCHORS:           # a connected group that large has edges
         return None
     inside = largest[i]
     renumber = np.cumsum(largest) - 1
     edges = (renumber[i[inside]], renumber[j[inside]])
     anchors = in_frame[largest]                                 # indices into ids
     points = np.asarray(xy, dtype=np.float64)
-    Z_a = largest_depths(points[anchors].T, edges, d[inside])
+    x, lengths = points[anchors].T, d[inside]                  # (2, n), (E',)
+    Z_a = largest_depths(x, edges, lengths)
     if iterations:
-        Z_a = refined_depths(points[anchors].T, Z_a, d[inside], edges,
-                             max_iterations=iterations)
+        Z_a = refined_depths(x, Z_a, lengths, edges, max_iterations=iterations)
     if not np.isfinite(Z_a).all():
         return None
     k = min(NEIGHBOURS, anchors.size)
