@@ -10,7 +10,8 @@ from grass_nrsfm_ros.nrsfm.measurement import (as_frames, from_frames, InvalidIn
                                                to_camera)
 from grass_nrsfm_ros.nrsfm.perspective import (camera_frame_shapes, centred_depths,
                                                depth_scale, fit_perspective,
-                                               PerspectiveNRSfM, rigid_residual)
+                                               PerspectiveNRSfM)
+from grass_nrsfm_ros.nrsfm.rigidity import rigid_residual
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
 
 

@@ -27,9 +27,9 @@ from the reconstruction's centred depths; solve on ``x (1 + delta)``; repeat.
 * Depth scale. The solves flatten depth (their relative depths regress on the truth's with a
   slope of 0.78-0.94). The kept round's ``delta`` is multiplied by the factor ``c`` in
   DEPTH_SCALES (from 1 up) whose camera-frame shapes are most nearly one rigid shape under
-  the pinhole (:func:`rigid_residual`): the head turns of a face fix its relief as they fix a
-  rigid body's. Where the residual only grows with ``c`` (a cloth, a surface with no rigid
-  core) ``c`` stays 1 (:func:`depth_scale`, docs/decisions/0733).
+  the pinhole (:func:`.rigidity.rigid_residual`): the head turns of a face fix its relief
+  as they fix a rigid body's. Where the residual only grows with ``c`` (a cloth, a surface
+  with no rigid core) ``c`` stays 1 (:func:`depth_scale`, docs/decisions/0733).
 
 Output, in the camera frame and consistent with the pinhole: ``Z = scale (1 + delta)``,
 ``X = Z x``, ``Y = Z y``, so ``S`` projects exactly onto the given ``x``. The monocular scale
@@ -43,8 +43,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .measurement import (as_frames, from_frames, InvalidInputError, nearest_rotation,
-                          validate_tracks)
+from .measurement import as_frames, from_frames, InvalidInputError, validate_tracks
+from .rigidity import rigid_residual
 
 #: rounds of the iteration (the first orthographic solve is round 0); all are run (no stop at
 #: a rise of the residual) and the lowest residual's kept (docs/decisions/0707, 0727)
@@ -58,8 +58,6 @@ MIN_RELATIVE_DEPTH = 0.1
 FLAT_DEPTHS = 1e-6
 #: factors the kept round's relative depths may be scaled by (docs/decisions/0733)
 DEPTH_SCALES = np.round(np.arange(1.0, 1.5 + 1e-9, 0.025), 3)
-#: generalised Procrustes rounds of :func:`rigid_residual`
-RIGID_ITERATIONS = 10
 
 
 @dataclass
@@ -176,23 +174,6 @@ def low_rank_sign(x, delta, rank=3):
         values = np.linalg.svd(W - W.mean(axis=1, keepdims=True), compute_uv=False)
         residuals.append(np.sum(values[rank:] ** 2) / max(np.sum(values ** 2), 1e-300))
     return 1.0 if residuals[0] <= residuals[1] else -1.0
-
-
-def rigid_residual(S, iterations=RIGID_ITERATIONS):
-    """How far the frames of ``S: (3F, P)`` are from one rigid shape: each frame centred and
-    of unit Frobenius norm, the mean over frames of its squared distance to their common
-    shape after its best rotation and scale (generalised Procrustes analysis from the first
-    frame's shape, ``iterations`` rounds)."""
-    X = as_frames(np.asarray(S, dtype=np.float64), 3)
-    X = X - X.mean(axis=2, keepdims=True)
-    X = X / np.maximum(np.linalg.norm(X, axis=(1, 2), keepdims=True), 1e-300)
-    shape = X[0]
-    for _ in range(iterations):
-        aligned = nearest_rotation(np.einsum('ip,fjp->fij', shape, X)) @ X
-        shape = aligned.mean(axis=0)
-        shape = shape / max(np.linalg.norm(shape), 1e-300)
-    size = np.einsum('fip,ip->f', aligned, shape)
-    return float(np.mean(np.sum((aligned - size[:, None, None] * shape) ** 2, axis=(1, 2))))
 
 
 def depth_scale(x, delta, scales=DEPTH_SCALES):

@@ -63,6 +63,7 @@ class SolverReport:
     rotation_checked: bool = False               # the 'auto' check chose rotation_method
     inextensible: bool = False                   # inextensible depths replaced the solver's
     rotations_registered: bool = False           # R re-estimated from the refined shapes, kept
+    relief: float = 1.0                          # depth factor of the stage 'relief'
     thinned_points: int = 0                      # tracks left out of the solve, filled in
     fallback: str = None
     observed_fraction: float = 1.0               # share of W's entries seen (masked solves)

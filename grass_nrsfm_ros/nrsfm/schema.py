@@ -175,6 +175,13 @@ SOLVER_PARAMS = (
           "'perspective'), 'always', or 'never' (the paper; "
           'a surface known to stretch). A solve given no warm start whose depths are kept '
           'then tries rotations registered to them, kept when its edge lengths vary less.'),
+    _mode('relief', 'auto', ('auto', 'never'),
+          "After a cold orthographic solve, each frame's depths scaled about their mean by the "
+          'factor in 1-1.5 that makes the shapes most nearly one rigid shape (the low-rank '
+          "solve flattens a turning face; a sheet keeps 1): 'auto' where the solve fits the "
+          "tracks (not noisy ones), or 'never' (the solver's depths as they are). Not in the "
+          'live windows or the perspective rounds, which scale their own '
+          '(docs/decisions/0734).'),
     _mode('thinning', 'auto', ('auto', 'never'),
           "'auto': where a cluster of tracks is far denser than the rest of the surface "
           f'(P >= {THINNING_MIN_POINTS}), the shapes are solved on a thinned set and the '

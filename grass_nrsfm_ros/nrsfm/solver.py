@@ -6,7 +6,8 @@
 
 The chain (:meth:`GrassmannNRSfM.fit`): (robust track weights ->) rotations -> rotation check
 -> the shape pass (:func:`shape_pass`: thinning -> ADMM -> refinement -> fill) -> registration
-(the shape pass again with registered rotations). The parameters are declared in
+(the shape pass again with registered rotations) -> relief (a cold solve's depths scaled to the
+most nearly rigid shapes). The parameters are declared in
 :mod:`.schema`; each ADMM solve gets its own settings (:mod:`.config`), the validated
 parameters are never changed.
 With ``projection='perspective'`` ``W`` holds normalised pinhole coordinates and the whole
@@ -29,8 +30,8 @@ from .perspective import PerspectiveNRSfM
 from .problem import initial_shapes, NRSfMResult, Problem, SolverReport, WarmStart
 from .schema import SOLVER_PARAMS, SOLVER_SPECS, validate_solver
 from .sheet_transport import TransportSheetNRSfM
-from .stages import (fill, refinement, registration, robust, rotation_check, rotations,
-                     surface, thinning)
+from .stages import (fill, refinement, registration, relief, robust, rotation_check,
+                     rotations, surface, thinning)
 
 #: a masked problem's solve is followed by this many refill rounds (docs/decisions/0802)
 REFILL_ROUNDS = 1
@@ -101,7 +102,8 @@ class GrassmannNRSfM:
         The chain: rotations -> rotation check -> shape pass (thinning -> ADMM -> refinement
         -> fill) -> registration (the shape pass again with registered rotations); with
         ``robust`` the weighed-down tracks' 3D then from their kept neighbours
-        (:func:`.stages.robust.refit`)."""
+        (:func:`.stages.robust.refit`); the refill rounds of a masked problem; last, on a cold
+        solve, the relief (:mod:`.stages.relief`)."""
         values = self.get_params()
         if beta_max is not None:
             values['beta_max'] = beta_max
@@ -147,6 +149,9 @@ class GrassmannNRSfM:
         rounds = REFILL_ROUNDS if refill_rounds is None else int(refill_rounds)
         if problem.mask is not None and rounds > 0:
             result = self._refilled(problem, result, progress, beta_max, rounds)
+        if relief.applies(problem, params, result):
+            with one_blas_thread():
+                result = relief.run(result)
         return result
 
     def _refilled(self, problem, first, progress, beta_max, rounds):
@@ -222,7 +227,7 @@ class GrassmannNRSfM:
         ``report.perspective`` the iteration's rounds. The inextensible stage runs in the
         rounds only when asked for ('always'): under 'auto' it is held off
         (docs/decisions/0725)."""
-        params = {**self.get_params(), 'projection': 'orthographic'}
+        params = {**self.get_params(), 'projection': 'orthographic', 'relief': 'never'}
         if params['inextensible'] == 'auto':
             params['inextensible'] = 'never'
         chain = _Rounds(GrassmannNRSfM(**params), init=init, progress=progress,

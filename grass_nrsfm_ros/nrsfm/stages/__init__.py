@@ -1,6 +1,6 @@
 """The add-ons around Algorithm 1, one module each, in the order :meth:`GrassmannNRSfM.fit`
 runs them: (through a pinhole, surface: a sheet or not,) robust (track weights), rotations,
-rotation check, thinning, (the ADMM,) refinement, fill, registration.
+rotation check, thinning, (the ADMM,) refinement, fill, registration, relief.
 
 Each stage module has ``NAME`` (as listed in ``SolverReport.stages``), ``applies(...) -> bool``
 (whether it acts on this problem), ``run(...)`` (what it does) and writes its own section of the
