@@ -94,9 +94,10 @@ def test_sign_rounds_follow_the_rest_of_the_sequence():
 
 def test_sign_rounds_improve_a_real_solve():
     """Articulated shaky, seed 2: the solver's own rotations and depths, refined with the
-    sweeps alone and with the rounds (measured 0.0238 vs 0.0082; rigid 0.1178)."""
+    sweeps alone and with the rounds (measured 0.0238 vs 0.0082; rigid 0.1178). The paper's
+    chain: the stage 'relief' held off too (its factor 1.35 here, record 0734)."""
     seq = make_sequence('articulated', n_frames=60, n_points=500, camera='shaky', seed=2)
-    paper = GrassmannNRSfM(inextensible='never').fit(seq.W)
+    paper = GrassmannNRSfM(inextensible='never', relief='never').fit(seq.W)
     edges = neighbour_edges(seq.W)
     sweeps_only = e3d(refine_depth(paper.S, edges)[0], seq.S)
     rounds = e3d(refine_depth(paper.S, edges, R=paper.R)[0], seq.S)
