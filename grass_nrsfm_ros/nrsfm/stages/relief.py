@@ -9,11 +9,12 @@ above MAX_FIT: noise, a pinhole's share of the tracks) the factor was measured t
 stage does not run (docs/decisions/0734). The x, y rows, hence the reprojection, are unchanged.
 
 Speaks ``S: (3F, P)`` camera-frame shapes of :class:`~..problem.NRSfMResult`.
-Report: ``relief`` (the factor), a note where it is not 1.
+Report: ``relief`` (the factor), ``seconds['relief']``, a note where it is not 1.
 A solve given a WarmStart, even an empty one (the live windows, the refill rounds), and the
 rounds of projection 'perspective' (which scale their own depths) skip it.
 """
 from dataclasses import replace
+import time
 
 import numpy as np
 
@@ -54,11 +55,16 @@ def factor(S, scales=SCALES):
 
 
 def run(result):
-    """``result`` with its depths scaled by :func:`factor` and the report's ``relief``."""
+    """``result`` with its depths scaled by :func:`factor` and the report's ``relief`` (and
+    ``seconds['relief']``, added to the total)."""
+    start = time.perf_counter()
     c = factor(result.S)
     report = result.report
     report.stages.append(NAME)
     report.relief = c
+    seconds = time.perf_counter() - start
+    report.seconds = {**report.seconds, NAME: seconds,
+                      'total': report.seconds.get('total', 0.0) + seconds}
     if c == 1.0:
         return result
     report.notes.append(f'relief: the depths scaled by {c:.3f}, the most nearly rigid '
