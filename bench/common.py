@@ -95,7 +95,8 @@ def report_summary(report):
     else:
         return None
     keep = ('iterations', 'converged', 'reason', 'seconds', 'K_rot', 'K_s', 'K_t', 'N_s', 'N_t',
-            'gamma', 'regrouped_points', 'reprojection_relative', 'gap', 'rank', 'fallback')
+            'gamma', 'regrouped_points', 'reprojection_relative', 'gap', 'rank', 'fallback',
+            'relief')
     return jsonable({k: d[k] for k in keep if k in d})
 
 

@@ -118,9 +118,11 @@ def options(projection):
         chosen['isometry_solver'] = isometry.SheetNRSfM(GrassmannNRSfM(), signs='solver')
         chosen['sheet_transport'] = sheet_transport.TransportSheetNRSfM()
         return chosen
+    rounds = GrassmannNRSfM(relief='never')          # the rounds scale their own (0734)
+    chosen = {'isometry_sync': isometry.SheetNRSfM(rounds, signs='sync'),
+              'sheet_registered': isometry.SheetNRSfM(rounds, signs='sync', alternations=1)}
     return {'default': GrassmannNRSfM(projection='perspective'),     # as shipped (record 0725)
-            **{name: PerspectiveNRSfM(solver) for name, solver in chosen.items()
-               if name != 'default'},
+            **{name: PerspectiveNRSfM(solver) for name, solver in chosen.items()},
             'max_depth': max_depth.MaxDepthNRSfM()}
 
 

@@ -51,10 +51,10 @@ def test_scaled_depths_keep_the_image_rows():
 
 
 def test_the_chain_runs_it_on_cold_orthographic_solves_only():
-    S = turning_blob(F=20, P=200, seed=2)
+    S = turning_blob(F=20, P=200, seed=3)
     W = from_frames(as_frames(S, 3)[:, :2])
     cold = GrassmannNRSfM().fit(W).report
-    assert cold.stages[-1] == 'relief' and cold.relief >= 1.0
+    assert cold.stages[-1] == 'relief' and cold.relief > 1.0
     assert cold.seconds['total'] >= cold.seconds['relief'] > 0.0
     never = GrassmannNRSfM(relief='never').fit(W).report
     assert 'relief' not in never.stages and never.relief == 1.0
@@ -76,10 +76,32 @@ def test_tracks_the_solve_does_not_fit_keep_their_depths():
     assert 'relief' not in report.stages and report.relief == 1.0
 
 
-def test_relief_keeps_the_reprojection():
-    seq = make_sequence('inflating', n_frames=20, n_points=200, seed=3)
-    on, off = (GrassmannNRSfM(relief=r).fit(seq.W) for r in ('auto', 'never'))
-    np.testing.assert_allclose(as_frames(on.S, 3)[:, :2], as_frames(off.S, 3)[:, :2])
+def test_relief_keeps_the_reprojection_and_deepens_the_shapes():
+    S = turning_blob(F=20, P=200, seed=3)
+    W = from_frames(as_frames(S, 3)[:, :2])
+    on, off = (GrassmannNRSfM(relief=r).fit(W) for r in ('auto', 'never'))
+    assert on.report.relief > 1.0
+    X, Y = as_frames(on.S, 3), as_frames(off.S, 3)
+    np.testing.assert_allclose(X[:, :2], Y[:, :2])
+    spread = [np.std(Z[:, 2], axis=1) for Z in (X, Y)]
+    np.testing.assert_allclose(spread[0], on.report.relief * spread[1])
+
+
+def test_a_masked_noisy_solve_is_gated_on_its_seen_entries():
+    """Noise of 0.75 % and half of the entries unseen: the first solve's residual over the
+    seen entries is over MAX_FIT (measured 0.0197), the refilled tracks' under it (0.0140,
+    the filled entries fit by construction); the gate reads the first and skips."""
+    S = turning_blob(F=20, P=200, seed=5)
+    W = from_frames(as_frames(S, 3)[:, :2])
+    rng = np.random.default_rng(1)
+    W = W + rng.normal(0.0, 0.0075 * np.abs(W).max(), W.shape)
+    visible = rng.uniform(size=(20, 200)) < 0.5
+    W[np.repeat(~visible, 2, axis=0)] = np.nan
+    first = GrassmannNRSfM().fit(W, refill_rounds=0).report
+    assert first.reprojection_relative > relief.MAX_FIT
+    report = GrassmannNRSfM().fit(W).report
+    assert 'refill' in report.stages and report.reprojection_relative <= relief.MAX_FIT
+    assert 'relief' not in report.stages and report.relief == 1.0
 
 
 @pytest.mark.data

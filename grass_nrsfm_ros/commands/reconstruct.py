@@ -330,6 +330,8 @@ def reconstruct_npz(args):
     print(f'{args.input}: F={F} P={P} {projection} K_rot={report.K_rot} '
           f'iterations={report.iterations} seconds={report.seconds["total"]:.1f} -> '
           f'{args.output}')
+    if report.relief != 1.0:
+        print(f'relief: depths scaled by {report.relief:g} (docs/decisions/0734)')
     if report.downweighted_tracks:
         print(f'robust: {len(report.downweighted_tracks)} tracks down-weighted (track_weights '
               'in OUT)')

@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .measurement import as_frames, from_frames, InvalidInputError, validate_tracks
-from .rigidity import rigid_residual
+from .rigidity import rigid_residual, SCALES
 
 #: rounds of the iteration (the first orthographic solve is round 0); all are run (no stop at
 #: a rise of the residual) and the lowest residual's kept (docs/decisions/0707, 0727)
@@ -57,7 +57,7 @@ MIN_RELATIVE_DEPTH = 0.1
 #: returned a flat shape (tshirt10's second round: exactly zero depths): the round is void
 FLAT_DEPTHS = 1e-6
 #: factors the kept round's relative depths may be scaled by (docs/decisions/0733)
-DEPTH_SCALES = np.round(np.arange(1.0, 1.5 + 1e-9, 0.025), 3)
+DEPTH_SCALES = SCALES
 
 
 @dataclass
@@ -238,7 +238,7 @@ class PerspectiveNRSfM:
             raise InvalidInputError(f'rescale_depths={self.rescale_depths!r}: expected a bool')
         if self.solver is None:
             from .solver import GrassmannNRSfM
-            return GrassmannNRSfM(), int(rounds), float(tol), float(scale)
+            return GrassmannNRSfM(relief='never'), int(rounds), float(tol), float(scale)
         if not callable(getattr(self.solver, 'fit', None)):
             raise InvalidInputError(f'solver must have a fit(W) method; got '
                                     f'{type(self.solver).__name__}')

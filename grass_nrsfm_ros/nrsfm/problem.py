@@ -25,8 +25,8 @@ class WarmStart:
     'auto' check, e.g. one a previous solve of overlapping frames chose). ``resumed``: the
     shapes resume a previous window's solution, so the solve runs as a cold one from them (the
     penalty from beta0, not config.WARM_BETA0; the inextensible depths, or on sparse tracks the
-    smoothness prior); its cap is the caller's (``fit(..., beta_max=)``). Every field is
-    optional.
+    smoothness prior; not the stage 'relief', which keeps to solves given nothing); its cap
+    is the caller's (``fit(..., beta_max=)``). Every field is optional.
     """
     R: np.ndarray = None
     S: np.ndarray = None

@@ -6,6 +6,9 @@ import numpy as np
 
 from .measurement import as_frames, nearest_rotation
 
+#: the factors a flattened sequence's depths may be scaled by (the first on a tie): the
+#: perspective rounds' (docs/decisions/0733) and the stage 'relief''s (0734)
+SCALES = np.round(np.arange(1.0, 1.5 + 1e-9, 0.025), 3)
 #: generalised Procrustes rounds of :func:`rigid_residual`
 RIGID_ITERATIONS = 10
 #: what each frame is divided by before the alignment: its whole norm, or that of its x, y

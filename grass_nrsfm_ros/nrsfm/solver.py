@@ -146,10 +146,11 @@ class GrassmannNRSfM:
                 result = replace(result, track_weights=track_weights,
                                  S=robust.refit(result.S, problem.W, track_weights,
                                                 result.report))
+        fitted = result.report     # the fit to the tracks seen, before any refill
         rounds = REFILL_ROUNDS if refill_rounds is None else int(refill_rounds)
         if problem.mask is not None and rounds > 0:
             result = self._refilled(problem, result, progress, beta_max, rounds)
-        if relief.applies(problem, params, result):
+        if relief.applies(problem, params, fitted):
             with one_blas_thread():
                 result = relief.run(result)
         return result

@@ -3,10 +3,11 @@ each frame's depths scaled about their mean by the factor ``c`` among SCALES (fr
 camera-frame shapes are most nearly one rigid shape (:func:`..rigidity.rigid_residual`, each
 frame divided by the norm of its x, y rows, which the factor leaves as they are). The low-rank
 solve flattens a turning face's relief; its turns fix the relief as they would fix a rigid
-body's. Where the residual only grows with ``c`` (a sheet, a body of rigid parts already
-right) ``c`` stays 1. Where the solve does not fit its tracks (relative reprojection residual
-above MAX_FIT: noise, a pinhole's share of the tracks) the factor was measured to hurt, and the
-stage does not run (docs/decisions/0734). The x, y rows, hence the reprojection, are unchanged.
+body's. Where the residual only grows with ``c`` (the sheets and mocap bodies measured) ``c``
+stays 1. Where the solve does not fit its tracks (relative reprojection residual above
+MAX_FIT: noise, a pinhole's share of the tracks) the factor was measured to hurt, and the stage
+does not run; nor where robust weights took tracks down or the solve fell back
+(docs/decisions/0734). The x, y rows, hence the reprojection, are unchanged.
 
 Speaks ``S: (3F, P)`` camera-frame shapes of :class:`~..problem.NRSfMResult`.
 Report: ``relief`` (the factor), ``seconds['relief']``, a note where it is not 1.
@@ -19,11 +20,9 @@ import time
 import numpy as np
 
 from ..measurement import as_frames, from_frames
-from ..rigidity import rigid_residual
+from ..rigidity import rigid_residual, SCALES
 
 NAME = 'relief'
-#: the factors tried, the first on a tie
-SCALES = np.round(np.arange(1.0, 1.5 + 1e-9, 0.025), 3)
 #: the factor is measured on at most this many tracks, evenly spaced
 MAX_TRACKS = 2000
 #: the largest relative reprojection residual of the solve (``report.reprojection_relative``)
@@ -31,9 +30,12 @@ MAX_TRACKS = 2000
 MAX_FIT = 0.0175
 
 
-def applies(problem, params, result):
-    return (params['relief'] == 'auto' and not problem.given
-            and result.report.reprojection_relative <= MAX_FIT)
+def applies(problem, params, fitted):
+    """``fitted``: the report of the solve of the tracks as seen (before a masked problem's
+    refill rounds, whose filled entries fit by construction)."""
+    return (params['relief'] == 'auto' and not problem.given and fitted.fallback is None
+            and not fitted.downweighted_tracks
+            and fitted.reprojection_relative <= MAX_FIT)
 
 
 def scaled_depths(S, factor):
