@@ -109,20 +109,19 @@ def sequences(mode, kinds=KINDS, real=True):
 
 def options(projection):
     """``{option: solver}`` measured under ``projection`` (each a ``fit(W) -> result``)."""
-    chosen = {'default': GrassmannNRSfM(),
-              'isometry_sync': isometry.SheetNRSfM(GrassmannNRSfM(), signs='sync'),
-              'sheet_registered': isometry.SheetNRSfM(GrassmannNRSfM(), signs='sync',
-                                                      alternations=1)}
     if projection == 'orthographic':
-        chosen['no_inextensible'] = GrassmannNRSfM(inextensible='never')
-        chosen['isometry_solver'] = isometry.SheetNRSfM(GrassmannNRSfM(), signs='solver')
-        chosen['sheet_transport'] = sheet_transport.TransportSheetNRSfM()
-        return chosen
+        return {'default': GrassmannNRSfM(),
+                'isometry_sync': isometry.SheetNRSfM(GrassmannNRSfM(), signs='sync'),
+                'sheet_registered': isometry.SheetNRSfM(GrassmannNRSfM(), signs='sync',
+                                                        alternations=1),
+                'no_inextensible': GrassmannNRSfM(inextensible='never'),
+                'isometry_solver': isometry.SheetNRSfM(GrassmannNRSfM(), signs='solver'),
+                'sheet_transport': sheet_transport.TransportSheetNRSfM()}
     rounds = GrassmannNRSfM(relief='never')          # the rounds scale their own (0734)
-    chosen = {'isometry_sync': isometry.SheetNRSfM(rounds, signs='sync'),
-              'sheet_registered': isometry.SheetNRSfM(rounds, signs='sync', alternations=1)}
+    sheet = {'isometry_sync': isometry.SheetNRSfM(rounds, signs='sync'),
+             'sheet_registered': isometry.SheetNRSfM(rounds, signs='sync', alternations=1)}
     return {'default': GrassmannNRSfM(projection='perspective'),     # as shipped (record 0725)
-            **{name: PerspectiveNRSfM(solver) for name, solver in chosen.items()},
+            **{name: PerspectiveNRSfM(solver) for name, solver in sheet.items()},
             'max_depth': max_depth.MaxDepthNRSfM()}
 
 

@@ -26,8 +26,8 @@ from the reconstruction's centred depths; solve on ``x (1 + delta)``; repeat.
   lowest residual over all of them is returned (docs/decisions/0707).
 * Depth scale. The solves flatten depth (their relative depths regress on the truth's with a
   slope of 0.78-0.94). The kept round's ``delta`` is multiplied by the factor ``c`` in
-  DEPTH_SCALES (from 1 up) whose camera-frame shapes are most nearly one rigid shape under
-  the pinhole (:func:`.rigidity.rigid_residual`): the head turns of a face fix its relief
+  ``rigidity.SCALES`` (from 1 up) whose camera-frame shapes are most nearly one rigid shape
+  under the pinhole (:func:`.rigidity.most_rigid`): the head turns of a face fix its relief
   as they fix a rigid body's. Where the residual only grows with ``c`` (a cloth, a surface
   with no rigid core) ``c`` stays 1 (:func:`depth_scale`, docs/decisions/0733).
 
@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .measurement import as_frames, from_frames, InvalidInputError, validate_tracks
-from .rigidity import rigid_residual, SCALES
+from .rigidity import most_rigid, SCALES
 
 #: rounds of the iteration (the first orthographic solve is round 0); all are run (no stop at
 #: a rise of the residual) and the lowest residual's kept (docs/decisions/0707, 0727)
@@ -56,8 +56,6 @@ MIN_RELATIVE_DEPTH = 0.1
 #: a solve whose centred depths' RMS is below this fraction of the tracks' RMS spread
 #: returned a flat shape (tshirt10's second round: exactly zero depths): the round is void
 FLAT_DEPTHS = 1e-6
-#: factors the kept round's relative depths may be scaled by (docs/decisions/0733)
-DEPTH_SCALES = SCALES
 
 
 @dataclass
@@ -176,12 +174,11 @@ def low_rank_sign(x, delta, rank=3):
     return 1.0 if residuals[0] <= residuals[1] else -1.0
 
 
-def depth_scale(x, delta, scales=DEPTH_SCALES):
+def depth_scale(x, delta, scales=SCALES):
     """The factor among ``scales`` (the first on a tie) whose relative depths ``c delta``
     (``delta: (F, P)``) of the normalised tracks ``x: (2F, P)`` give the camera-frame shapes
-    of least :func:`rigid_residual`."""
-    residuals = [rigid_residual(camera_frame_shapes(x, c * delta)) for c in scales]
-    return float(scales[int(np.argmin(residuals))])
+    of least rigid residual (:func:`.rigidity.most_rigid`)."""
+    return most_rigid(lambda c: camera_frame_shapes(x, c * delta), scales)
 
 
 def camera_frame_shapes(x, delta, scale=1.0):

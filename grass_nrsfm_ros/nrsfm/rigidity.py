@@ -1,6 +1,6 @@
 """How far a sequence of shapes is from one rigid shape: :func:`rigid_residual` of
-``S: (3F, P)``, the measure by which the perspective depth scale (:mod:`.perspective`) and the
-stage 'relief' (:mod:`.stages.relief`) choose a factor for flattened depths.
+``S: (3F, P)``, and :func:`most_rigid`, the factor by which the perspective depth scale
+(:mod:`.perspective`) and the stage 'relief' (:mod:`.stages.relief`) scale flattened depths.
 """
 import numpy as np
 
@@ -35,3 +35,10 @@ def rigid_residual(S, iterations=RIGID_ITERATIONS, norm='shape'):
         shape = shape / max(np.linalg.norm(shape), 1e-300)
     size = np.einsum('fip,ip->f', aligned, shape)
     return float(np.mean(np.sum((aligned - size[:, None, None] * shape) ** 2, axis=(1, 2))))
+
+
+def most_rigid(shapes_at, scales=SCALES, norm='shape'):
+    """The factor ``c`` among ``scales`` (the first on a tie) whose shapes ``shapes_at(c):
+    (3F, P)`` have the least :func:`rigid_residual` (``norm`` as there)."""
+    residuals = [rigid_residual(shapes_at(c), norm=norm) for c in scales]
+    return float(scales[int(np.argmin(residuals))])

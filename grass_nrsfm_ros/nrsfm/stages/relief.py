@@ -1,6 +1,6 @@
 """Stage 'relief' (after a cold orthographic solve that fits its tracks, ``relief='auto'``):
 each frame's depths scaled about their mean by the factor ``c`` among SCALES (from 1 up) whose
-camera-frame shapes are most nearly one rigid shape (:func:`..rigidity.rigid_residual`, each
+camera-frame shapes are most nearly one rigid shape (:func:`..rigidity.most_rigid`, each
 frame divided by the norm of its x, y rows, which the factor leaves as they are). The low-rank
 solve flattens a turning face's relief; its turns fix the relief as they would fix a rigid
 body's. Where the residual only grows with ``c`` (the sheets and mocap bodies measured) ``c``
@@ -20,7 +20,7 @@ import time
 import numpy as np
 
 from ..measurement import as_frames, from_frames
-from ..rigidity import rigid_residual, SCALES
+from ..rigidity import most_rigid, SCALES
 
 NAME = 'relief'
 #: the factor is measured on at most this many tracks, evenly spaced
@@ -52,8 +52,7 @@ def factor(S, scales=SCALES):
     least rigid residual (x, y norm), measured on at most MAX_TRACKS of its tracks."""
     P = S.shape[1]
     S = S[:, np.linspace(0, P - 1, min(P, MAX_TRACKS)).astype(int)]
-    residuals = [rigid_residual(scaled_depths(S, c), norm='image') for c in scales]
-    return float(scales[int(np.argmin(residuals))])
+    return most_rigid(lambda c: scaled_depths(S, c), scales, norm='image')
 
 
 def run(result):
