@@ -6,8 +6,9 @@ solve flattens a turning face's relief; its turns fix the relief as they would f
 body's. Where the residual only grows with ``c`` (the sheets and mocap bodies measured) ``c``
 stays 1. Where the solve does not fit its tracks (relative reprojection residual above
 MAX_FIT: noise, a pinhole's share of the tracks) the factor was measured to hurt, and the stage
-does not run; nor where robust weights took tracks down or the solve fell back
-(docs/decisions/0734). The x, y rows, hence the reprojection, are unchanged.
+does not run; nor where the solve fell back (docs/decisions/0734). Where robust weights took
+tracks down, the factor is measured on the tracks they kept (docs/decisions/0817). The x, y
+rows, hence the reprojection, are unchanged.
 
 Speaks ``S: (3F, P)`` camera-frame shapes of :class:`~..problem.NRSfMResult`.
 Report: ``relief`` (the factor), ``seconds['relief']``, a note where it is not 1.
@@ -34,7 +35,6 @@ def applies(problem, params, fitted):
     """``fitted``: the report of the solve of the tracks as seen (before a masked problem's
     refill rounds, whose filled entries fit by construction)."""
     return (params['relief'] == 'auto' and not problem.given and fitted.fallback is None
-            and not fitted.downweighted_tracks
             and fitted.reprojection_relative <= MAX_FIT)
 
 
@@ -56,10 +56,12 @@ def factor(S, scales=SCALES):
 
 
 def run(result):
-    """``result`` with its depths scaled by :func:`factor` and the report's ``relief`` (and
+    """``result`` with its depths scaled by :func:`factor` of the tracks its robust weights
+    kept (``track_weights`` 1; every track where it has none) and the report's ``relief`` (and
     ``seconds['relief']``, added to the total)."""
     start = time.perf_counter()
-    c = factor(result.S)
+    weights = result.track_weights
+    c = factor(result.S if weights is None else result.S[:, weights >= 1.0])
     report = result.report
     report.stages.append(NAME)
     report.relief = c
