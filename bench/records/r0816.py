@@ -32,13 +32,19 @@ def row(kind, seed):
     return ratios
 
 
-def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
-    parser.add_argument('--seeds', default='4,5,6,7')
+def drift_rows(row, argv, seeds, description):
+    """``[row(kind, seed), ...]`` over the ``--seeds`` (default ``seeds``) and ``--kinds`` of
+    ``argv``, seed by seed."""
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument('--seeds', default=seeds)
     parser.add_argument('--kinds', default=KINDS)
     args = parser.parse_args(argv)
-    rows = [row(kind, int(seed)) for seed in args.seeds.split(',')
+    return [row(kind, int(seed)) for seed in args.seeds.split(',')
             for kind in args.kinds.split(',')]
+
+
+def main(argv=None):
+    rows = drift_rows(row, argv, '4,5,6,7', __doc__.split('\n')[0])
     for mode in ('auto', 'never', 'cauchy'):
         print(f'{mode}: {sum(r[mode] <= BAR for r in rows)} of {len(rows)} within {BAR}')
     return 0

@@ -7,16 +7,13 @@ e3D over the clean tracks' default solve, for the drifting tracks' default solve
 measured on the tracks the robust weights kept) and with ``relief='never'`` (what the stage did
 where weights applied before this record), with the factors of the clean and drifting solves.
 """
-import argparse
 import sys
 
 import numpy as np
 
 from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM
+from .r0816 import BAR, drift_rows
 from ..missing import drift_case
-
-KINDS = 'bending,waving,inflating,twisting,articulated'
-BAR = 1.2
 
 
 def row(kind, seed):
@@ -34,12 +31,7 @@ def row(kind, seed):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
-    parser.add_argument('--seeds', default='3,4,5,6,7')
-    parser.add_argument('--kinds', default=KINDS)
-    args = parser.parse_args(argv)
-    rows = [row(kind, int(seed)) for seed in args.seeds.split(',')
-            for kind in args.kinds.split(',')]
+    rows = drift_rows(row, argv, '3,4,5,6,7', __doc__.split('\n')[0])
     for mode in ('now', 'held_off'):
         ratios = np.array([r[mode] for r in rows])
         print(f'{mode}: {int((ratios <= BAR).sum())} of {len(rows)} within {BAR}, '
