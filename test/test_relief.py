@@ -5,6 +5,7 @@ import pytest
 
 from grass_nrsfm_ros.nrsfm import camera, GrassmannNRSfM, metrics, WarmStart
 from grass_nrsfm_ros.nrsfm.measurement import as_frames, from_frames
+from grass_nrsfm_ros.nrsfm.rigidity import SCALES
 from grass_nrsfm_ros.nrsfm.stages import relief
 from grass_nrsfm_ros.nrsfm.synthetic import drifting_tracks, make_sequence
 
@@ -106,9 +107,9 @@ def test_a_masked_noisy_solve_is_gated_on_its_seen_entries():
 
 def test_robust_weights_measure_the_factor_on_the_kept_tracks():
     """An inflating heart (40 x 300, 1 px noise) with 5 % of its tracks drifting up to 20 px:
-    'auto' weighs them down and the stage still runs, its factor read on the kept tracks equal
-    to the clean tracks' (1.1, measured). e3D over the clean tracks' solve: 0.994 with the
-    stage, 1.474 held off (measured; record 0817)."""
+    'auto' weighs them down and the stage still runs, its factor read on the kept tracks
+    within one step of the clean tracks' (both 1.1, measured). e3D over the clean tracks'
+    solve: 0.994 with the stage, 1.474 held off (measured; record 0817)."""
     seq = make_sequence('inflating', n_frames=40, n_points=300, noise=0.005, seed=4)
     W, drifting = drifting_tracks(seq.W, 0.05, 20.0, np.random.default_rng(204))
     clean = GrassmannNRSfM().fit(seq.W)
@@ -116,7 +117,8 @@ def test_robust_weights_measure_the_factor_on_the_kept_tracks():
     held_off = GrassmannNRSfM(relief='never').fit(W)
     assert set(result.report.downweighted_tracks) >= set(np.flatnonzero(drifting))
     assert 'relief' in result.report.stages and clean.report.relief > 1.0
-    assert result.report.relief == clean.report.relief
+    step = SCALES[1] - SCALES[0]
+    assert abs(result.report.relief - clean.report.relief) <= step + 1e-12
     e3d = [metrics.e3d(r.S, seq.S, scale=True) for r in (clean, result, held_off)]
     assert e3d[1] <= 1.1 * e3d[0] and e3d[1] <= 0.8 * e3d[2]
 
