@@ -12,19 +12,16 @@ with one depth sign per round for all frames, and with every round's rotations r
 """
 import argparse
 import sys
+from unittest import mock
 
 import numpy as np
 
-from grass_nrsfm_ros.nrsfm import camera, GrassmannNRSfM, metrics
+from grass_nrsfm_ros.nrsfm import camera, GrassmannNRSfM
 from grass_nrsfm_ros.nrsfm import perspective
 from grass_nrsfm_ros.nrsfm.measurement import centre
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
 from grass_nrsfm_ros.nrsfm.stages import rotation_check
-from ..perspective import face_shapes, orthographic, pinhole
-
-
-def e3d(S, truth):
-    return metrics.e3d(S, truth, scale=True)
+from ..perspective import e3d, face_shapes, orthographic, pinhole
 
 
 def one_sign_per_round(delta, previous):
@@ -40,18 +37,10 @@ def perspective_e3d(x, truth, **params):
 def levers(x, truth):
     """``{lever: e3D}`` of the perspective solve with each lever."""
     out = {}
-    margin = rotation_check.ROTATION_MARGIN
-    try:
-        rotation_check.ROTATION_MARGIN = 0.0
+    with mock.patch.object(rotation_check, 'ROTATION_MARGIN', 0.0):
         out['margin_0'] = perspective_e3d(x, truth)
-    finally:
-        rotation_check.ROTATION_MARGIN = margin
-    signs = perspective.agreeing_signs
-    try:
-        perspective.agreeing_signs = one_sign_per_round
+    with mock.patch.object(perspective, 'agreeing_signs', one_sign_per_round):
         out['one_sign'] = perspective_e3d(x, truth)
-    finally:
-        perspective.agreeing_signs = signs
     out['rigid_rotations'] = perspective_e3d(x, truth, rotations='rigid')
     return out
 
@@ -59,8 +48,9 @@ def levers(x, truth):
 def row(seed, sigma, with_levers):
     truth = face_shapes(40, 400, seed)
     rng = np.random.default_rng(seed + 300)
-    W_px = camera.project(truth, pinhole())
-    x = camera.normalise(W_px + rng.normal(0.0, sigma, W_px.shape), pinhole())
+    K = pinhole()
+    W_px = camera.project(truth, K)
+    x = camera.normalise(W_px + rng.normal(0.0, sigma, W_px.shape), K)
     ortho = orthographic(truth)
     relative = sigma * np.std(centre(ortho)[0]) / np.std(centre(W_px)[0])
     ortho = ortho + np.random.default_rng(seed + 400).normal(0.0, relative, ortho.shape)
