@@ -6,8 +6,9 @@
   rank-3K factorisation ``W = Pi B``, linear orthonormality constraints on one column triple
   ``Q_k = G_k G_k^T`` (3K x 3K), their null space (dimension ``2K^2 - K``), a rank-3 PSD point
   of that space found by alternating projections from seeded starts, then a scale-free
-  nonlinear least-squares refinement of ``G_k`` (3K x 3). The rank K is picked from the data
-  (:func:`choose_rank`) or given.
+  nonlinear least-squares refinement of ``G_k`` (3K x 3), where W's spectrum shows a noise
+  floor with the deformation columns' share of the motion held down (:func:`noise_penalty`).
+  The rank K is picked from the data (:func:`choose_rank`) or given.
 
 Conventions (see :mod:`.measurement`): ``W: (2F, P)``, ``S: (3F, P)`` camera frame,
 ``R: (F, 3, 3)`` world to camera. Inputs need not be centred.
@@ -32,6 +33,13 @@ PLATEAU_RATIO = 0.93
 EXACT_RESIDUAL = 1e-7
 #: default candidate ranks for K='auto'
 DEFAULT_CANDIDATES = tuple(range(1, 7))
+#: weight of the deformation columns' share of the motion in the refinement where the last
+#: column used lies at W's noise floor (record 0736)
+NOISE_PENALTY = 0.1
+#: fewest singular values of W whose median is taken as its noise floor (fewer: no floor)
+NOISE_FLOOR_VALUES = 72
+#: penalty weights below this are not applied (noise-free input keeps the plain refinement)
+MIN_PENALTY = 1e-4
 
 
 @dataclass(frozen=True)
@@ -192,20 +200,55 @@ def _orthonormality_jacobian(g, a, b):
     return J.reshape(2 * a.shape[0], 3 * a.shape[1])
 
 
-def _refine(G0, Pi):
-    """Minimise the scale-free orthonormality residual over ``G: (n, 3)`` from ``G0``."""
+def _refine(G0, Pi, penalty=0.0):
+    """Minimise the scale-free orthonormality residual over ``G: (n, 3)`` from ``G0``, plus
+    ``penalty`` times the share of the motion ``Pi G`` carried by Pi's columns beyond the
+    first three (:func:`_share_terms`). Returns ``(G / |G|, rms orthonormality residual)``."""
     a, b = Pi[0::2], Pi[1::2]
+    weights = np.sqrt(penalty) * (np.arange(Pi.shape[1]) >= 3)
+    scale = np.repeat(np.linalg.norm(Pi, axis=0), 3)          # |Pi_j| per entry of g
 
     def fun(g):
-        return _orthonormality_residual(g, a, b)
+        residual = _orthonormality_residual(g, a, b)
+        if penalty == 0.0:
+            return residual
+        return np.concatenate([residual, _share_terms(g, scale, weights)[0]])
 
     def jac(g):
-        return _orthonormality_jacobian(g, a, b)
+        J = _orthonormality_jacobian(g, a, b)
+        if penalty == 0.0:
+            return J
+        return np.vstack([J, _share_terms(g, scale, weights)[1]])
 
     sol = least_squares(fun, G0.ravel(), jac=jac, method='trf', x_scale='jac',
                         xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=200)
     G = sol.x.reshape(G0.shape)
-    return G / np.linalg.norm(G), float(np.sqrt(np.mean(sol.fun ** 2)))
+    residual = _orthonormality_residual(sol.x, a, b)
+    return G / np.linalg.norm(G), float(np.sqrt(np.mean(residual ** 2)))
+
+
+def _share_terms(g, scale, weights):
+    """``(terms: (3n,), J: (3n, 3n))``: each entry of ``G = g.reshape(n, 3)`` as its part of
+    the motion ``Pi G`` (``scale`` |Pi_j| per entry, Pi's columns orthogonal), over the whole,
+    times ``weights`` (per column, repeated per entry); their squares sum to the weighted
+    share of the motion in those columns. ``J`` is their Jacobian."""
+    k = np.repeat(weights, 3)
+    part = scale * g
+    total = np.linalg.norm(part)
+    J = np.diag(k * scale) / total - np.outer(k * part, part * scale) / total ** 3
+    return k * part / total, J
+
+
+def noise_penalty(d, n):
+    """The refinement's penalty (:func:`_refine`) for a factorisation of rank ``n`` of a W
+    with singular values ``d`` (descending): ``NOISE_PENALTY`` times the noise floor (the
+    median of ``d``, where W has at least ``NOISE_FLOOR_VALUES`` of them) over the last
+    column's singular value ``d[n - 1]``, at most 1; 0 for a rigid factorisation (n <= 3),
+    without a floor, or below ``MIN_PENALTY``."""
+    if n <= 3 or d.size < NOISE_FLOOR_VALUES or d[n - 1] <= 0:
+        return 0.0
+    penalty = NOISE_PENALTY * min(1.0, float(np.median(d)) / float(d[n - 1]))
+    return penalty if penalty >= MIN_PENALTY else 0.0
 
 
 # ----------------------------------------------------------------------------- rotations
@@ -377,9 +420,9 @@ def rotations_for_rank(W, K, *, random_state=0, n_starts=N_STARTS, warm=None, _s
     starts = _intersection_starts(N, n, rng, n_starts)
     if warm is not None:
         starts.append(np.vstack([warm, np.zeros((n - warm.shape[0], 3))]))
-    best = None
+    best, penalty = None, noise_penalty(d, n)
     for G0 in starts:
-        G, res = _refine(G0, Pi)
+        G, res = _refine(G0, Pi, penalty)
         if best is None or res < best[1] - 1e-12:
             best = (G, res)
     if best is None:
@@ -394,6 +437,7 @@ def rotations_for_rank(W, K, *, random_state=0, n_starts=N_STARTS, warm=None, _s
         'rank_used': n,
         'null_dim': null_dim,
         'null_gap': gap,
+        'penalty': penalty,
         'energy': float((d[:n] ** 2).sum() / (d ** 2).sum()),
         'step_median_deg': float(np.median(steps)) if steps.size else 0.0,
         'step_mean_deg': float(steps.mean()) if steps.size else 0.0,
@@ -471,7 +515,8 @@ def rotations_from_start(W, K, R0, known, _svd=None):
     A[:, :, :, :3 * n] = np.einsum('fij,ck->ficjk', rows, np.eye(3)).reshape(F_k, 2, 3, 3 * n)
     A[np.arange(F_k), :, :, 3 * n + np.arange(F_k)] = -R0[idx, :2, :]
     x = np.linalg.svd(A.reshape(6 * F_k, -1), full_matrices=False)[2][-1]
-    G, residual = _refine(x[:3 * n].reshape(n, 3) / np.linalg.norm(x[:3 * n]), Pi)
+    G, residual = _refine(x[:3 * n].reshape(n, 3) / np.linalg.norm(x[:3 * n]), Pi,
+                          noise_penalty(d, n))
     R, ok = _rotations_from_triple(Pi, G)
     if not ok.all():
         raise ValueError('rotation rows degenerate for some frames')
