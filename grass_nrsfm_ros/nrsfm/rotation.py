@@ -35,7 +35,7 @@ EXACT_RESIDUAL = 1e-7
 DEFAULT_CANDIDATES = tuple(range(1, 7))
 #: weight of the deformation columns' share of the motion in the refinement where the last
 #: column used lies at W's noise floor (record 0736)
-NOISE_PENALTY = 0.1
+NOISE_PENALTY = 0.05
 #: fewest singular values of W whose median is taken as its noise floor (fewer: no floor)
 NOISE_FLOOR_VALUES = 72
 #: penalty weights below this are not applied (noise-free input keeps the plain refinement)
@@ -242,12 +242,16 @@ def _share_terms(g, scale, weights):
 def noise_penalty(d, n):
     """The refinement's penalty (:func:`_refine`) for a factorisation of rank ``n`` of a W
     with singular values ``d`` (descending): ``NOISE_PENALTY`` times the noise floor (the
-    median of ``d``, where W has at least ``NOISE_FLOOR_VALUES`` of them) over the last
-    column's singular value ``d[n - 1]``, at most 1; 0 for a rigid factorisation (n <= 3),
+    median of ``d``, where W has at least ``NOISE_FLOOR_VALUES`` of them and the median is
+    not below ``RANK_TOL`` of the first: no exact low rank) over the last column's singular
+    value ``d[n - 1]``, at most ``NOISE_PENALTY``; 0 for a rigid factorisation (n <= 3),
     without a floor, or below ``MIN_PENALTY``."""
     if n <= 3 or d.size < NOISE_FLOOR_VALUES or d[n - 1] <= 0:
         return 0.0
-    penalty = NOISE_PENALTY * min(1.0, float(np.median(d)) / float(d[n - 1]))
+    floor = float(np.median(d))
+    if floor < RANK_TOL * d[0]:
+        return 0.0
+    penalty = NOISE_PENALTY * min(1.0, floor / float(d[n - 1]))
     return penalty if penalty >= MIN_PENALTY else 0.0
 
 
