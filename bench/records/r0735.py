@@ -45,12 +45,34 @@ def levers(x, truth):
     return out
 
 
-def row(seed, sigma, with_levers):
+def noisy_face(seed, sigma):
+    """``(x: (2F, P), truth: (3F, P), W_px: (2F, P))``: face ``seed``'s normalised pinhole
+    tracks with Gaussian noise of ``sigma`` pixels (seeded), its truth and its pixel tracks."""
     truth = face_shapes(40, 400, seed)
     rng = np.random.default_rng(seed + 300)
     K = pinhole()
     W_px = camera.project(truth, K)
-    x = camera.normalise(W_px + rng.normal(0.0, sigma, W_px.shape), K)
+    return camera.normalise(W_px + rng.normal(0.0, sigma, W_px.shape), K), truth, W_px
+
+
+def face_arguments(argv, description, faces, **flags):
+    """The parsed ``--faces`` (default ``faces``) and ``--noise`` of ``argv`` and ``flags``
+    (name: default), or None without the face model."""
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument('--faces', default=faces)
+    parser.add_argument('--noise', default='0,0.5,1')
+    for name, default in flags.items():
+        parser.add_argument(f'--{name}', default=default,
+                            action='store_true' if default is False else 'store')
+    args = parser.parse_args(argv)
+    if face_shapes(4, 10, 0) is None:
+        print('the face model is missing (../shared): nothing to measure')
+        return None
+    return args
+
+
+def row(seed, sigma, with_levers):
+    x, truth, W_px = noisy_face(seed, sigma)
     ortho = orthographic(truth)
     relative = sigma * np.std(centre(ortho)[0]) / np.std(centre(W_px)[0])
     ortho = ortho + np.random.default_rng(seed + 400).normal(0.0, relative, ortho.shape)
@@ -65,13 +87,8 @@ def row(seed, sigma, with_levers):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
-    parser.add_argument('--faces', default='0,1,2,3')
-    parser.add_argument('--noise', default='0,0.5,1')
-    parser.add_argument('--levers', action='store_true')
-    args = parser.parse_args(argv)
-    if face_shapes(4, 10, 0) is None:
-        print('the face model is missing (../shared): nothing to measure')
+    args = face_arguments(argv, __doc__.split('\n')[0], '0,1,2,3', levers=False)
+    if args is None:
         return 0
     rows = [row(int(f), float(s), args.levers) for s in args.noise.split(',')
             for f in args.faces.split(',')]

@@ -9,7 +9,6 @@ pixel tracks): e3D (per-frame scale) of the default perspective solve with the p
 seed) and tracked by the default front end (``bench.frontend``), their complete frame-0
 tracks (1,500 evenly subsampled): the same three figures.
 """
-import argparse
 import sys
 from unittest import mock
 
@@ -17,10 +16,11 @@ import numpy as np
 
 from grass_nrsfm_ros.frontend import scenes
 from grass_nrsfm_ros.frontend.flow import DEFAULT_METHOD
-from grass_nrsfm_ros.nrsfm import camera, GrassmannNRSfM, rotation
+from grass_nrsfm_ros.nrsfm import GrassmannNRSfM, rotation
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
+from .r0735 import face_arguments, noisy_face
 from .. import frontend
-from ..perspective import e3d, face_shapes, pinhole
+from ..perspective import e3d
 
 
 def figures(x, truth):
@@ -33,12 +33,8 @@ def figures(x, truth):
 
 
 def face_row(seed, sigma):
-    truth = face_shapes(40, 400, seed)
-    rng = np.random.default_rng(seed + 300)
-    K = pinhole()
-    W_px = camera.project(truth, K)
-    return report(f'face {seed} {sigma:g} px', figures(
-        camera.normalise(W_px + rng.normal(0.0, sigma, W_px.shape), K), truth))
+    x, truth, _ = noisy_face(seed, sigma)
+    return report(f'face {seed} {sigma:g} px', figures(x, truth))
 
 
 def frontend_row(seed):
@@ -63,13 +59,8 @@ def report(name, row):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
-    parser.add_argument('--faces', default='0,1,2,3,4,5,6,7')
-    parser.add_argument('--noise', default='0,0.5,1')
-    parser.add_argument('--frontend', default='')
-    args = parser.parse_args(argv)
-    if face_shapes(4, 10, 0) is None:
-        print('the face model is missing (../shared): nothing to measure')
+    args = face_arguments(argv, __doc__.split('\n')[0], '0,1,2,3,4,5,6,7', frontend='')
+    if args is None:
         return 0
     rows = [face_row(int(f), float(s)) for s in args.noise.split(',') if args.faces
             for f in args.faces.split(',')]
