@@ -35,6 +35,7 @@ import numpy as np
 from grass_nrsfm_ros.frontend import DenseTracker, scenes
 from grass_nrsfm_ros.frontend.flow import DEFAULT_METHOD, METHODS
 from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM
+from grass_nrsfm_ros.nrsfm.measurement import from_frames
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
 from . import common
 
@@ -135,9 +136,20 @@ def evaluate(scene, frames):
         'reanchored_frames': [f for f, fr in enumerate(frames) if fr.counts['reanchored']],
         'failed_checks': int(sum(fr.counts['failed'] for fr in frames)),
     }
-    complete = first & tracked.all(axis=0) & visible.all(axis=0)
+    complete = complete_tracks(birth, uv, visible)
     figures.update(reconstruction(scene, uv[:, complete], true_uv[:, complete], X[:, complete]))
     return figures
+
+
+def complete_tracks(birth, uv, visible):
+    """``(P,) bool``: the tracks born in frame 0, tracked in ``uv (F, P, 2)`` (NaN where not)
+    and ``visible (F, P)`` in every frame."""
+    return (birth == 0) & np.isfinite(uv[..., 0]).all(axis=0) & visible.all(axis=0)
+
+
+def evenly_spread(P):
+    """Indices ``(P',)`` of at most RECONSTRUCTION_POINTS of ``P`` tracks, evenly spread."""
+    return np.linspace(0, P - 1, min(P, RECONSTRUCTION_POINTS)).astype(int)
 
 
 def reconstruction(scene, uv, true_uv, X):
@@ -145,8 +157,8 @@ def reconstruction(scene, uv, true_uv, X):
     P = uv.shape[1]
     if P < 50:
         return {'reconstruction_points': P}
-    keep = np.linspace(0, P - 1, min(P, RECONSTRUCTION_POINTS)).astype(int)
-    S = X[:, keep].transpose(0, 2, 1).reshape(-1, len(keep))            # (3F, P)
+    keep = evenly_spread(P)
+    S = from_frames(X[:, keep].transpose(0, 2, 1))                      # (3F, P')
     out = {'reconstruction_points': int(len(keep)), 'complete_tracks': int(P)}
     for name, points in (('tracked', uv[:, keep]), ('perfect', true_uv[:, keep])):
         W = normalised(points, scene.K)

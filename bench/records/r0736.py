@@ -17,6 +17,7 @@ import numpy as np
 from grass_nrsfm_ros.frontend import scenes
 from grass_nrsfm_ros.frontend.flow import DEFAULT_METHOD
 from grass_nrsfm_ros.nrsfm import GrassmannNRSfM, rotation
+from grass_nrsfm_ros.nrsfm.measurement import from_frames
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
 from .r0735 import face_arguments, noisy_face
 from .. import frontend
@@ -43,11 +44,10 @@ def frontend_row(seed):
     frames, _ = frontend.run_tracker(images, DEFAULT_METHOD, 4, scene.mask(0))
     _, uv, birth, start = frontend.track_matrix(frames)
     _, X, visible, _ = frontend.ground_truth(scene, birth, start)
-    complete = (birth == 0) & np.isfinite(uv[..., 0]).all(axis=0) & visible.all(axis=0)
-    P = int(complete.sum())
-    keep = np.linspace(0, P - 1, min(P, frontend.RECONSTRUCTION_POINTS)).astype(int)
-    truth = X[:, complete][:, keep].transpose(0, 2, 1).reshape(-1, len(keep))
-    x = frontend.normalised(uv[:, complete][:, keep], scene.K)
+    tracks = np.flatnonzero(frontend.complete_tracks(birth, uv, visible))
+    tracks = tracks[frontend.evenly_spread(len(tracks))]
+    truth = from_frames(X[:, tracks].transpose(0, 2, 1))
+    x = frontend.normalised(uv[:, tracks], scene.K)
     return report(f'front-end face {seed}', figures(x, truth))
 
 
