@@ -1,8 +1,10 @@
 """Front end: dense tracks from rendered image sequences against their ground truth.
 
 ``python -m bench.frontend [--smoke] [--frames F] [--methods M1,M2] [--step N]
-[--options JSON]`` renders a Surrey-model face (where the model is present) and a bending
-sheet (640 x 480, f = 620 px, 100 frames, sensor noise 1 grey level, 30 % Lambert shading),
+[--options JSON] [--seeds S1,S2]`` renders a Surrey-model face (where the model is present)
+and a bending sheet (640 x 480, f = 620 px, 100 frames, sensor noise 1 grey level, 30 %
+Lambert shading; ``--seeds``: the face and sheet of each of those seeds, other identities,
+expressions, textures and head turns, measured without the timing),
 tracks them with :class:`grass_nrsfm_ros.frontend.DenseTracker` (region: the frame-0 mask of
 the surface; ``--options``: its keyword arguments) and measures, per sequence and method:
 
@@ -16,13 +18,14 @@ the surface; ``--options``: its keyword arguments) and measures, per sequence an
   (``cv2.setNumThreads(1)``; the region's lowest rows cut to hold that; the median of 3 runs;
   ``OPENBLAS_NUM_THREADS=1``; the machine's load average is recorded beside it);
 * e3D (per-frame Procrustes with scale) of GrassmannNRSfM on the complete frame-0 tracks in
-  normalised coordinates ``K^-1 [u v 1]`` over e3D from perfect tracks of the same points;
-  and of the tracked points through the pinhole (``projection='perspective'``) over rigid
+  normalised coordinates ``K^-1 [u v 1]`` over e3D from perfect tracks of the same points,
+  with the orthographic solver and through the pinhole (``projection='perspective'``, the
+  solver a camera's tracks get); and of the tracked points through the pinhole over rigid
   factorisation's (issues #37, #38: the rendered face from the front end's tracks, e3D / rigid);
   for the sheet also with ``surface='sheet'`` (the maximum-depth heuristic).
 
-Figures go to stdout and ``bench/results/frontend.json`` (``--smoke``: 12 frames, one
-method, ``bench/results/smoke/``).
+Figures go to stdout and ``bench/results/frontend.json`` (``--seeds``:
+``frontend_seeds.json``; ``--smoke``: 12 frames, one method, ``bench/results/smoke/``).
 """
 import argparse
 import json
@@ -44,14 +47,15 @@ CALIBRATION_RUNS = 5                 # untimed runs that size the timing region
 FACING_DEGREES = 75.0                # beyond this from face-on a point counts as edge-on
 
 
-def make_scenes(n_frames):
-    """``[(name, Scene)]``: the face where the Surrey model is found, and a bending sheet."""
-    out = []
+def make_scenes(n_frames, seed=0):
+    """``[(name, Scene)]``: the face where the Surrey model is found, and a bending sheet,
+    of ``seed`` (named with it where it is not 0)."""
+    out, suffix = [], f' seed {seed}' if seed else ''
     try:
-        out.append(('face', scenes.face_scene(n_frames)))
+        out.append(('face' + suffix, scenes.face_scene(n_frames, seed=seed)))
     except FileNotFoundError as exc:
         common.log(f'frontend: no face ({exc.__class__.__name__}); sheet only')
-    out.append(('sheet', scenes.sheet_scene('bending', n_frames)))
+    out.append(('sheet' + suffix, scenes.sheet_scene('bending', n_frames, seed=seed)))
     return out
 
 
@@ -162,12 +166,13 @@ def reconstruction(scene, uv, true_uv, X):
     out = {'reconstruction_points': int(len(keep)), 'complete_tracks': int(P)}
     for name, points in (('tracked', uv[:, keep]), ('perfect', true_uv[:, keep])):
         W = normalised(points, scene.K)
-        result = GrassmannNRSfM().fit(W)
-        out[f'e3d_{name}'] = e3d(result.S, S, scale=True)
+        out[f'e3d_{name}'] = e3d(GrassmannNRSfM().fit(W).S, S, scale=True)
+        out[f'e3d_{name}_perspective'] = e3d(
+            GrassmannNRSfM(projection='perspective').fit(W).S, S, scale=True)
     out['e3d_ratio'] = out['e3d_tracked'] / out['e3d_perfect']
+    out['e3d_ratio_perspective'] = (out['e3d_tracked_perspective'] /
+                                    out['e3d_perfect_perspective'])
     W = normalised(uv[:, keep], scene.K)
-    out['e3d_tracked_perspective'] = e3d(
-        GrassmannNRSfM(projection='perspective').fit(W).S, S, scale=True)
     out['e3d_tracked_rigid'] = e3d(rigid_factorisation(W)[1], S, scale=True)
     out['e3d_perspective_over_rigid'] = (out['e3d_tracked_perspective'] /
                                          out['e3d_tracked_rigid'])
@@ -234,14 +239,16 @@ def _cut_rows(mask, step, points):
     return region
 
 
-def run(mode, methods=None, step=4, n_frames=None, options=None):
+def run(mode, methods=None, step=4, n_frames=None, options=None, seeds=None):
     """Rows of figures per sequence and method; ``options``: DenseTracker keyword
-    arguments (None: its defaults)."""
+    arguments (None: its defaults); ``seeds``: the scenes of those seeds, without the
+    timing (None: seed 0, timed)."""
     options = options or {}
     methods = methods or mode.pick([DEFAULT_METHOD], [DEFAULT_METHOD], list(METHODS))
     n_frames = n_frames or mode.pick(12, 100, 100)
     rows, sequences = [], {}
-    for name, scene in make_scenes(n_frames):
+    made = [pair for seed in (seeds or [0]) for pair in make_scenes(n_frames, seed)]
+    for name, scene in made:
         images, render_s = render(scene)
         mask = scene.mask(0)
         sequences[name] = {'frames': n_frames, 'size': list(scene.size),
@@ -255,7 +262,8 @@ def run(mode, methods=None, step=4, n_frames=None, options=None):
             row = {'sequence': name, 'method': method, 'step': step, 'ms_per_frame': ms,
                    'options': options}
             row.update(evaluate(scene, frames))
-            row.update(timing(images, mask, method, options=options))
+            if seeds is None:
+                row.update(timing(images, mask, method, options=options))
             rows.append(row)
             print(summary(row), flush=True)
     return {'rows': rows, 'sequences': sequences, 'targets': TARGETS}
@@ -268,14 +276,15 @@ TARGETS = {'face_error_median_px': 0.5, 'face_error_p95_px': 2.0, 'sheet_error_m
 
 
 def summary(row):
+    ms = row.get('ms_per_frame_1_thread', row['ms_per_frame'])
     return (f"{row['sequence']:5s} {row['method']:17s} err median {row['error_median_px']:.3f}"
             f" p95 {row['error_p95_px']:.3f} max {row['error_max_px']:.1f} px | alive "
             f"{100 * row['alive_last_among_visible_last']:.1f} % (facing "
             f"{100 * row['alive_last_among_facing_always']:.1f} %) | hidden-alive "
             f"{100 * row['alive_while_hidden_share']:.2f} % | {row['tracks_frame0']} tracks | "
-            f"{row['ms_per_frame_1_thread']:.1f} ms/frame 1 thread at "
-            f"{row['timing_tracks_mean']:.0f} tracks | e3D ratio "
-            f"{row.get('e3d_ratio', float('nan')):.3f} | reanchored "
+            f"{ms:.1f} ms/frame at {row.get('timing_tracks_mean', np.nan):.0f} tracks | e3D "
+            f"ratio {row.get('e3d_ratio', np.nan):.3f}, perspective "
+            f"{row.get('e3d_ratio_perspective', np.nan):.3f} | reanchored "
             f"{len(row['reanchored_frames'])}x")
 
 
@@ -290,8 +299,12 @@ def main(argv=None):
     parser.add_argument('--options', type=json.loads, default=None,
                         help='DenseTracker keyword arguments as JSON, e.g. '
                         '\'{"min_zncc": 0.75}\'')
+    parser.add_argument('--seeds', default=None,
+                        help='comma-separated scene seeds (other faces and sheets, untimed; '
+                        'written to frontend_seeds.json)')
     parser.add_argument('--out', default=None, help='results folder')
     args = parser.parse_args(argv)
+    seeds = None if args.seeds is None else [int(s) for s in args.seeds.split(',')]
     methods = None
     if args.methods:
         methods = list(METHODS) if args.methods == 'all' else args.methods.split(',')
@@ -299,8 +312,8 @@ def main(argv=None):
         if unknown:
             parser.error(f'unknown methods {sorted(unknown)}; choose from {METHODS}')
     mode = common.Mode('smoke' if args.smoke else 'quick', out=args.out)
-    payload = run(mode, methods, args.step, args.frames, args.options)
-    path = common.write_result(mode, 'frontend', payload)
+    payload = run(mode, methods, args.step, args.frames, args.options, seeds)
+    path = common.write_result(mode, 'frontend' if seeds is None else 'frontend_seeds', payload)
     print(f'wrote {path}')
 
 

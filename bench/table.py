@@ -275,11 +275,16 @@ def frontend_table(doc):
              'frame-0 tracks alive at the end: where visible / where visible and within '
              f"{doc['rows'][0].get('facing_degrees', 75):.0f}° of face-on throughout | "
              'ms per frame (1 thread) at tracks (load average) | '
-             'e3D tracked / perfect | tracked, perspective / rigid (e3D) |',
+             'e3D tracked / perfect: orthographic solver; perspective | '
+             'tracked, perspective / rigid (e3D) |',
              '|---|---|---|---|---|---|---|---|---|']
     for r in doc['rows']:
-        ms = r.get('ms_per_frame_1_thread', r.get('ms_per_frame'))
-        ratio = r.get('e3d_ratio')
+        timed = '-' if 'ms_per_frame_1_thread' not in r else (
+            f"{fmt(r['ms_per_frame_1_thread'], 1)} at {r.get('timing_tracks_mean', 0):,.0f} "
+            f"({fmt(r.get('load_average_1min'), 1)})")
+        ratio = fmt(r.get('e3d_ratio'), 3)
+        if 'e3d_ratio_perspective' in r:
+            ratio += f"; {fmt(r['e3d_ratio_perspective'], 3)}"
         rigid = '-' if 'e3d_perspective_over_rigid' not in r else (
             f"{fmt(r['e3d_perspective_over_rigid'], 3)} ({fmt(r['e3d_tracked_perspective'])} / "
             f"{fmt(r['e3d_tracked_rigid'])})")
@@ -291,9 +296,7 @@ def frontend_table(doc):
         lines.append(f"| {r['sequence']} | {r['method']} | {r['step']} | {r['tracks_frame0']} | "
                      f"{fmt(r['error_median_px'], 2)} / {fmt(r['error_p95_px'], 2)} | "
                      f"{100 * r['alive_last_among_visible_last']:.0f} % / {facing} | "
-                     f"{fmt(ms, 1)} at {r.get('timing_tracks_mean', 0):,.0f} "
-                     f"({fmt(r.get('load_average_1min'), 1)}) | "
-                     f'{fmt(ratio, 3)} | {rigid} |')
+                     f'{timed} | {ratio} | {rigid} |')
     face = doc.get('sequences', {}).get('face', {})
     if 'tracks_step2' in face:
         lines += ['', f"Tracks in the face's frame 0: {face['tracks_step2']:,} at step 2, "
@@ -461,6 +464,9 @@ SECTIONS = (('accuracy', 'Accuracy', 'e3D; "A": Akhter\'s metric, the one of the
             ('grassmann', 'Grassmann branches probed', 'Record 0502', grassmann_table),
             ('frontend', 'Camera front end', 'Rendered pinhole sequences, 640 x 480, tracks '
              'against the true projections (`python -m bench.frontend`)', frontend_table),
+            ('frontend_seeds', 'Camera front end: other seeds', 'Other faces and sheets '
+             '(identities, expressions, textures, turns), the same measures without the timing '
+             '(`python -m bench.frontend --seeds 1,2,3`)', frontend_table),
             ('camera_pipeline', 'Images to points over DDS', 'Images at 30 Hz -> tracker node '
              '-> reconstruction node (`python -m bench.camera_pipeline`)', camera_pipeline_table),
             ('kinect_paper', "The paper's kinect_paper sequence", 'From its 191 images; e3D on '
