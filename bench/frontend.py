@@ -164,15 +164,16 @@ def reconstruction(scene, uv, true_uv, X):
     keep = evenly_spread(P)
     S = from_frames(X[:, keep].transpose(0, 2, 1))                      # (3F, P')
     out = {'reconstruction_points': int(len(keep)), 'complete_tracks': int(P)}
-    for name, points in (('tracked', uv[:, keep]), ('perfect', true_uv[:, keep])):
-        W = normalised(points, scene.K)
+    tracks = {'tracked': normalised(uv[:, keep], scene.K),
+              'perfect': normalised(true_uv[:, keep], scene.K)}
+    for name, W in tracks.items():
         out[f'e3d_{name}'] = e3d(GrassmannNRSfM().fit(W).S, S, scale=True)
         out[f'e3d_{name}_perspective'] = e3d(
             GrassmannNRSfM(projection='perspective').fit(W).S, S, scale=True)
     out['e3d_ratio'] = out['e3d_tracked'] / out['e3d_perfect']
     out['e3d_ratio_perspective'] = (out['e3d_tracked_perspective'] /
                                     out['e3d_perfect_perspective'])
-    W = normalised(uv[:, keep], scene.K)
+    W = tracks['tracked']
     out['e3d_tracked_rigid'] = e3d(rigid_factorisation(W)[1], S, scale=True)
     out['e3d_perspective_over_rigid'] = (out['e3d_tracked_perspective'] /
                                          out['e3d_tracked_rigid'])
