@@ -38,6 +38,7 @@ import numpy as np
 from grass_nrsfm_ros.frontend import DenseTracker, scenes
 from grass_nrsfm_ros.frontend.flow import DEFAULT_METHOD, METHODS
 from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM
+from grass_nrsfm_ros.nrsfm.camera import normalise
 from grass_nrsfm_ros.nrsfm.measurement import from_frames
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
 from . import common
@@ -164,8 +165,8 @@ def reconstruction(scene, uv, true_uv, X):
     keep = evenly_spread(P)
     S = from_frames(X[:, keep].transpose(0, 2, 1))                      # (3F, P')
     out = {'reconstruction_points': int(len(keep)), 'complete_tracks': int(P)}
-    tracks = {'tracked': normalised(uv[:, keep], scene.K),
-              'perfect': normalised(true_uv[:, keep], scene.K)}
+    tracks = {'tracked': normalise(pixel_tracks(uv[:, keep]), scene.K),
+              'perfect': normalise(pixel_tracks(true_uv[:, keep]), scene.K)}
     for name, W in tracks.items():
         out[f'e3d_{name}'] = e3d(GrassmannNRSfM().fit(W).S, S, scale=True)
         out[f'e3d_{name}_perspective'] = e3d(
@@ -184,11 +185,9 @@ def reconstruction(scene, uv, true_uv, X):
     return out
 
 
-def normalised(uv, K):
-    """``W (2F, P)`` of ``K^-1 [u v 1]`` for pixels ``uv (F, P, 2)``."""
-    x = (uv[..., 0] - K[0, 2] - K[0, 1] * (uv[..., 1] - K[1, 2]) / K[1, 1]) / K[0, 0]
-    y = (uv[..., 1] - K[1, 2]) / K[1, 1]
-    return np.stack([x, y], axis=1).reshape(-1, uv.shape[1])
+def pixel_tracks(uv):
+    """``W: (2F, P)`` of pixels ``uv: (F, P, 2)`` (rows 2f / 2f+1 = u / v of frame f)."""
+    return from_frames(uv.transpose(0, 2, 1))
 
 
 def density(image, mask):

@@ -51,6 +51,7 @@ from grass_nrsfm_ros.commands.track import tracks_matrix
 from grass_nrsfm_ros.frontend import DenseTracker
 from grass_nrsfm_ros.frontend.sources import open_source
 from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM
+from grass_nrsfm_ros.nrsfm.camera import normalise
 from grass_nrsfm_ros.nrsfm.measurement import frame_rows
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
 from grass_nrsfm_ros.nrsfm.stages import surface as surface_stage
@@ -104,16 +105,6 @@ def track(folder, K, step, frames=None, **options):
     W, track_ids = tracks_matrix(ids, uv)
     per_frame = {k: np.array([c[k] for c in counts]) for k in counts[0]}
     return W, track_ids, np.array(stamps), per_frame, seconds / len(stamps)
-
-
-def normalised(W, K):
-    """``W: (2F, P)`` pixels as ``K^-1 [u v 1]`` (x, y rows)."""
-    F, P = W.shape[0] // 2, W.shape[1]
-    uv1 = np.stack([W[0::2], W[1::2], np.ones((F, P))], axis=1)      # (F, 3, P)
-    xy = np.linalg.solve(K, uv1)
-    out = np.empty_like(W)
-    out[0::2], out[1::2] = xy[:, 0] / xy[:, 2], xy[:, 1] / xy[:, 2]
-    return out
 
 
 # ------------------------------------------------------------------------------ ground truth
@@ -269,7 +260,7 @@ def measure(args, frames_folder, K):
     log(f'{W.shape[0] // 2} frames, {ids.size} tracks, {int(np.isfinite(W[0]).sum())} in '
         f'frame 1, {int(complete.sum())} in every frame; {1000 * frame_seconds:.0f} ms per '
         'frame')
-    Wn = normalised(W[:, complete], K)
+    Wn = normalise(W[:, complete], K)
     started = time.perf_counter()
     result = GrassmannNRSfM().fit(Wn)
     solve_seconds = time.perf_counter() - started
@@ -409,7 +400,7 @@ def ground_truth_figures(W_px, estimates, K, tie_px):
     match = locate_subset(W_px, W_gt_px, tie_px)
     if match is None:
         return {'available': True, 'located': False}
-    own = GrassmannNRSfM().fit(normalised(W_gt_px, K)).S
+    own = GrassmannNRSfM().fit(normalise(W_gt_px, K)).S
     e3ds = {name: subset_e3d(S, match, S_gt) for name, S in estimates.items()}
     return dict(available=True, located=True, frames=match['frames'] + 1,
                 residual_px=match['residual_px'], points_tied=int(match['tied'].sum()),

@@ -65,7 +65,7 @@ def kinect():
         W_gt_px, S_gt = npz['W_px'].astype(np.float64), npz['S'].astype(np.float64)
     match = kp.locate_subset(W_px, W_gt_px, 3.0)
     frames = match['frames']
-    x = kp.normalised(W_px[frame_rows(frames, 2)], K)
+    x = camera.normalise(W_px[frame_rows(frames, 2)], K)
     F3 = 3 * (W_px.shape[0] // 2)
 
     def score(S_frames):
@@ -81,7 +81,7 @@ def kinect():
     carried = np.einsum('fnkc,nk->fnc', uv[:, match['tracks']], match['weights'])
     for name, pixels in (('truth pixels', W_gt_px[:, tied]),
                          ('carried by the tracks', from_frames(carried.transpose(0, 2, 1)))):
-        S = max_depth.MaxDepthNRSfM().fit(kp.normalised(pixels, K)).S
+        S = max_depth.MaxDepthNRSfM().fit(camera.normalise(pixels, K)).S
         print(f'  the {tied.sum()} truth points, {name}, every one an anchor: '
               f'{metrics.e3d(S, S_gt[:, tied], scale=True):.4f}')
 

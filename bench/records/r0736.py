@@ -17,6 +17,7 @@ import numpy as np
 from grass_nrsfm_ros.frontend import scenes
 from grass_nrsfm_ros.frontend.flow import DEFAULT_METHOD
 from grass_nrsfm_ros.nrsfm import GrassmannNRSfM, rotation
+from grass_nrsfm_ros.nrsfm.camera import normalise
 from grass_nrsfm_ros.nrsfm.measurement import from_frames
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
 from .r0735 import face_arguments, noisy_face
@@ -47,7 +48,7 @@ def frontend_row(seed):
     tracks = np.flatnonzero(frontend.complete_tracks(birth, uv, visible))
     tracks = tracks[frontend.evenly_spread(len(tracks))]
     truth = from_frames(X[:, tracks].transpose(0, 2, 1))
-    x = frontend.normalised(uv[:, tracks], scene.K)
+    x = normalise(frontend.pixel_tracks(uv[:, tracks]), scene.K)
     return report(f'front-end face {seed}', figures(x, truth))
 
 

@@ -31,8 +31,9 @@ import time
 import numpy as np
 
 from bench.missing import back_data, oracle_rotations, registered_truth
-from grass_nrsfm_ros.nrsfm import (e3d, estimate_rotations, GrassmannNRSfM, rigid_factorisation,
-                                   rotation_error, WarmStart)
+from grass_nrsfm_ros.nrsfm import (camera, e3d, estimate_rotations, GrassmannNRSfM,
+                                   rigid_factorisation, rotation_error, WarmStart)
+from grass_nrsfm_ros.nrsfm.measurement import as_frames
 from grass_nrsfm_ros.nrsfm.missing import fill_unseen
 from grass_nrsfm_ros.nrsfm.rotation import rotation_spread
 from grass_nrsfm_ros.nrsfm.stages import rotations
@@ -49,10 +50,7 @@ def normalised(W):
     from bench import common
     with np.load(common.data_root() / 'russell_back' / 'back.npz') as z:
         K = z['K'].astype(float)
-    F = W.shape[0] // 2
-    u, v = W.reshape(F, 2, -1)[:, 0], W.reshape(F, 2, -1)[:, 1]
-    y = (v - K[1, 2]) / K[1, 1]
-    return np.stack([(u - K[0, 2] - K[0, 1] * y) / K[0, 0], y], axis=1)
+    return as_frames(camera.normalise(W, K), 2)
 
 
 def depth_ratio(S, truth):
