@@ -48,7 +48,7 @@ from grass_nrsfm_ros.params import defaults, MAPPINGS, MIN_WINDOW_FRAMES, WINDOW
 from grass_nrsfm_ros.pipeline import live_events, make_pipeline, reconstruct_live
 from grass_nrsfm_ros.windowing import Windowing
 from . import common
-from .streaming import accuracy_sequences
+from .streaming import accuracy_sequences, timed_solves
 
 SLOW_FACE = 'slow_face300'
 #: frames after the first model the causal reference (a solve of the whole past) is computed at
@@ -94,17 +94,7 @@ def timed_pipeline(mapping_tracks, **options):
     that solved."""
     pipe = make_pipeline({**defaults(), 'mapping_tracks': mapping_tracks, **options},
                          GrassmannNRSfM)
-    mapper = pipe.backend.mapper
-    solve, cpu = mapper.solve, []
-
-    def timed(window, progress=None):
-        start = time.process_time()
-        update = solve(window, progress)
-        if update.kind == 'solved':
-            cpu.append(time.process_time() - start)
-        return update
-    mapper.solve = timed
-    return pipe, cpu
+    return pipe, timed_solves(pipe.backend.mapper)
 
 
 def stacked(results):

@@ -14,7 +14,6 @@ Uses GrassmannNRSfM and the bending sheet of test/doubles.py. Timings are noisy 
 machine: CPU seconds are printed too.
 """
 import argparse
-import functools
 from pathlib import Path
 import statistics
 import sys
@@ -25,34 +24,13 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(REPO), str(REPO / 'test')]     # run as a script: the checkout and test/
 
+from bench.streaming import Counting  # noqa: E402
 from doubles import bending_sheet  # noqa: E402
 from grass_nrsfm_ros import cloud  # noqa: E402
 from grass_nrsfm_ros.nrsfm import GrassmannNRSfM  # noqa: E402
 from grass_nrsfm_ros.nrsfm.metrics import e3d  # noqa: E402
 from grass_nrsfm_ros.params import defaults  # noqa: E402
 from grass_nrsfm_ros.pipeline import make_pipeline, reconstruct_live  # noqa: E402
-
-
-class Counting:
-    """Wraps a factory to record each fit's iterations and CPU seconds (the solver otherwise
-    unchanged: its parameters and ``fit``'s keywords, which the mapper reads)."""
-
-    def __init__(self, factory):
-        self.factory, self.fits = factory, []
-
-    def __call__(self):
-        solver, fits = self.factory(), self.fits
-        fit = solver.fit
-
-        @functools.wraps(fit)
-        def counted(W, init=None, **kwargs):
-            start = time.process_time()
-            result = fit(W, init=init, **kwargs)
-            fits.append((getattr(result.report, 'iterations', 0),
-                         time.process_time() - start, init is not None))
-            return result
-        solver.fit = counted
-        return solver
 
 
 def sliding_pipeline(factory, **options):

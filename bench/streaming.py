@@ -70,6 +70,21 @@ class Counting:
         return solver
 
 
+def timed_solves(mapper):
+    """``cpu``, a list that fills with the CPU seconds of each ``mapper.solve`` that solved
+    (``mapper.solve`` wrapped in place)."""
+    solve, cpu = mapper.solve, []
+
+    def timed(window, progress=None):
+        start = time.process_time()
+        update = solve(window, progress)
+        if update.kind == 'solved':
+            cpu.append(time.process_time() - start)
+        return update
+    mapper.solve = timed
+    return cpu
+
+
 def sliding_pipeline(factory, **options):
     """An inline LivePipeline with the defaults, window WINDOW / STRIDE, ``refined_from:
     first_window`` and ``options`` (parameters), solving with ``factory``."""
@@ -83,16 +98,7 @@ def streamed(W, factory, **options):
     F, P = W.shape[0] // 2, W.shape[1]
     ids = np.arange(P, dtype=np.uint32)
     pipe = sliding_pipeline(factory, **options)
-    mapper = pipe.backend.mapper
-    solve, solve_cpu = mapper.solve, []
-
-    def timed_solve(window, progress=None):
-        start = time.process_time()
-        update = solve(window, progress)
-        if update.kind == 'solved':
-            solve_cpu.append(time.process_time() - start)
-        return update
-    mapper.solve = timed_solve
+    solve_cpu = timed_solves(pipe.backend.mapper)
     _, results, _ = reconstruct_live(pipe, np.arange(F), [(ids, W[2 * f:2 * f + 2].T)
                                                           for f in range(F)])
     assert [r.stamp_ns for r in results] == list(range(F)), 'every frame refined once'

@@ -25,6 +25,7 @@ from dataclasses import replace
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import eigsh, splu
+from sklearn.base import BaseEstimator
 from sklearn.neighbors import NearestNeighbors
 
 from .inextensible import LENGTH_QUANTILE, trajectory_embedding
@@ -169,7 +170,7 @@ def refine_sheet(S, W, *, k=NEIGHBOURS, quantile=LENGTH_QUANTILE, anchor=ANCHOR,
     return from_frames(out), info
 
 
-class SheetNRSfM:
+class SheetNRSfM(BaseEstimator):
     """``solver`` (default :class:`.solver.GrassmannNRSfM()`) followed by :func:`refine_sheet`:
     ``fit(W: (2F, P)) -> result`` with the refined ``S`` (the solver's result otherwise).
 

@@ -45,6 +45,7 @@ import time
 import numpy as np
 from scipy.optimize import linprog
 import scipy.sparse as sp
+from sklearn.base import BaseEstimator
 from sklearn.neighbors import NearestNeighbors
 
 from . import isometry
@@ -332,7 +333,7 @@ class MaxDepthResult:
     lengths: np.ndarray = None
 
 
-class MaxDepthNRSfM:
+class MaxDepthNRSfM(BaseEstimator):
     """MDH reconstruction of normalised pinhole tracks: ``fit(W: (2F, P)) ->``
     :class:`MaxDepthResult`. ``neighbours``: edges per track; ``max_tracks``: the LP runs on
     at most this many tracks (:func:`anchor_tracks`), the others' depths are interpolated

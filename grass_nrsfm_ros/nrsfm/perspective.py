@@ -42,6 +42,7 @@ camera frame, ``delta: (F, P)``.
 from dataclasses import dataclass, field
 
 import numpy as np
+from sklearn.base import BaseEstimator
 
 from .measurement import as_frames, from_frames, InvalidInputError, validate_tracks
 from .rigidity import most_rigid, SCALES
@@ -189,7 +190,7 @@ def camera_frame_shapes(x, delta, scale=1.0):
     return from_frames(np.concatenate([xy * Z[:, None, :], Z[:, None, :]], axis=1))
 
 
-class PerspectiveNRSfM:
+class PerspectiveNRSfM(BaseEstimator):
     """The projective-depth iteration (see the module docstring) around ``solver`` (an object
     with ``fit(W) -> result`` whose ``result.S: (3F, P)`` is camera frame; default a
     :class:`.solver.GrassmannNRSfM` with its default parameters).
@@ -207,21 +208,6 @@ class PerspectiveNRSfM:
         self.tol = tol
         self.scale = scale
         self.rescale_depths = rescale_depths
-
-    def get_params(self, deep=True):
-        return {'solver': self.solver, 'max_rounds': self.max_rounds, 'tol': self.tol,
-                'scale': self.scale, 'rescale_depths': self.rescale_depths}
-
-    def set_params(self, **params):
-        for name, value in params.items():
-            if name not in self.get_params():
-                raise InvalidInputError(f'unknown parameter {name!r}')
-            setattr(self, name, value)
-        return self
-
-    def __repr__(self):
-        args = ', '.join(f'{k}={v!r}' for k, v in self.get_params().items())
-        return f'{type(self).__name__}({args})'
 
     def _checked(self):
         rounds, tol, scale = self.max_rounds, self.tol, self.scale

@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import eigsh
+from sklearn.base import BaseEstimator
 
 from . import isometry
 from .measurement import as_frames, from_frames
@@ -189,7 +190,7 @@ class TransportSheetResult:
     info: dict = field(default_factory=dict)
 
 
-class TransportSheetNRSfM:
+class TransportSheetNRSfM(BaseEstimator):
     """:func:`transport_depths` as a solver: ``fit(W: (2F, P)) ->``
     :class:`TransportSheetResult` (orthographic, complete tracks)."""
 
