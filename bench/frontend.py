@@ -157,16 +157,34 @@ def evenly_spread(P):
     return np.linspace(0, P - 1, min(P, RECONSTRUCTION_POINTS)).astype(int)
 
 
+def tracked(scene, **options):
+    """``(uv, true_uv: (F, P, 2), X: (F, P, 3), visible: (F, P), birth: (P,))``: the default
+    tracker (step 4, ``options`` its keywords) over ``scene`` rendered from its frame-0 mask,
+    and the truth of every track (:func:`track_matrix`, :func:`ground_truth`)."""
+    images, _ = render(scene)
+    frames, _ = run_tracker(images, DEFAULT_METHOD, 4, scene.mask(0), **options)
+    _, uv, birth, start = track_matrix(frames)
+    true_uv, X, visible, _ = ground_truth(scene, birth, start)
+    return uv, true_uv, X, visible, birth
+
+
+def solver_tracks(K, uv, true_uv, X):
+    """``(tracked, perfect: (2F, P') normalised K^-1 [u v 1], S: (3F, P') truth)``: the tracks
+    ``uv (F, P, 2)``, their true positions and points ``X (F, P, 3)``, at most
+    RECONSTRUCTION_POINTS of them evenly spread (:func:`evenly_spread`)."""
+    keep = evenly_spread(uv.shape[1])
+    return (normalise(pixel_tracks(uv[:, keep]), K), normalise(pixel_tracks(true_uv[:, keep]), K),
+            from_frames(X[:, keep].transpose(0, 2, 1)))
+
+
 def reconstruction(scene, uv, true_uv, X):
     """e3D of GrassmannNRSfM from the tracks and from perfect tracks of the same points."""
     P = uv.shape[1]
     if P < 50:
         return {'reconstruction_points': P}
-    keep = evenly_spread(P)
-    S = from_frames(X[:, keep].transpose(0, 2, 1))                      # (3F, P')
-    out = {'reconstruction_points': int(len(keep)), 'complete_tracks': int(P)}
-    tracks = {'tracked': normalise(pixel_tracks(uv[:, keep]), scene.K),
-              'perfect': normalise(pixel_tracks(true_uv[:, keep]), scene.K)}
+    tracked, perfect, S = solver_tracks(scene.K, uv, true_uv, X)
+    out = {'reconstruction_points': int(S.shape[1]), 'complete_tracks': int(P)}
+    tracks = {'tracked': tracked, 'perfect': perfect}
     for name, W in tracks.items():
         out[f'e3d_{name}'] = e3d(GrassmannNRSfM().fit(W).S, S, scale=True)
         out[f'e3d_{name}_perspective'] = e3d(

@@ -18,17 +18,12 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from grass_nrsfm_ros.frontend import scenes
-from grass_nrsfm_ros.frontend.flow import DEFAULT_METHOD
 from .. import frontend
 
 
 def tracked_face(seed):
     """``(uv, true_uv: (F, P, 2), visible: (F, P), birth: (P,))`` of the shipped tracker."""
-    scene = scenes.face_scene(100, seed=seed)
-    images, _ = frontend.render(scene)
-    frames, _ = frontend.run_tracker(images, DEFAULT_METHOD, 4, scene.mask(0))
-    _, uv, birth, start = frontend.track_matrix(frames)
-    true_uv, _, visible, _ = frontend.ground_truth(scene, birth, start)
+    uv, true_uv, _, visible, birth = frontend.tracked(scenes.face_scene(100, seed=seed))
     return uv, true_uv, visible, birth
 
 

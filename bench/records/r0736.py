@@ -12,13 +12,8 @@ tracks (1,500 evenly subsampled): the same three figures.
 import sys
 from unittest import mock
 
-import numpy as np
-
 from grass_nrsfm_ros.frontend import scenes
-from grass_nrsfm_ros.frontend.flow import DEFAULT_METHOD
 from grass_nrsfm_ros.nrsfm import GrassmannNRSfM, rotation
-from grass_nrsfm_ros.nrsfm.camera import normalise
-from grass_nrsfm_ros.nrsfm.measurement import from_frames
 from grass_nrsfm_ros.nrsfm.rotation import rigid_factorisation
 from .r0735 import face_arguments, noisy_face
 from .. import frontend
@@ -41,14 +36,9 @@ def face_row(seed, sigma):
 
 def frontend_row(seed):
     scene = scenes.face_scene(100, seed=seed)
-    images, _ = frontend.render(scene)
-    frames, _ = frontend.run_tracker(images, DEFAULT_METHOD, 4, scene.mask(0))
-    _, uv, birth, start = frontend.track_matrix(frames)
-    _, X, visible, _ = frontend.ground_truth(scene, birth, start)
-    tracks = np.flatnonzero(frontend.complete_tracks(birth, uv, visible))
-    tracks = tracks[frontend.evenly_spread(len(tracks))]
-    truth = from_frames(X[:, tracks].transpose(0, 2, 1))
-    x = normalise(frontend.pixel_tracks(uv[:, tracks]), scene.K)
+    uv, true_uv, X, visible, birth = frontend.tracked(scene)
+    keep = frontend.complete_tracks(birth, uv, visible)
+    x, _, truth = frontend.solver_tracks(scene.K, uv[:, keep], true_uv[:, keep], X[:, keep])
     return report(f'front-end face {seed}', figures(x, truth))
 
 

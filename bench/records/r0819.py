@@ -19,11 +19,9 @@ import numpy as np
 from scipy.stats import spearmanr
 
 from grass_nrsfm_ros.frontend import scenes
-from grass_nrsfm_ros.frontend.flow import DEFAULT_METHOD
 from grass_nrsfm_ros.nrsfm import e3d, GrassmannNRSfM
-from grass_nrsfm_ros.nrsfm.camera import normalise
 from grass_nrsfm_ros.nrsfm.inextensible import trajectory_embedding
-from grass_nrsfm_ros.nrsfm.measurement import centre, from_frames
+from grass_nrsfm_ros.nrsfm.measurement import centre
 from grass_nrsfm_ros.nrsfm.problem import Problem
 from grass_nrsfm_ros.nrsfm.stages import robust
 from .. import frontend
@@ -34,16 +32,12 @@ EARLY_FRAMES = 10
 def face_tracks(seed):
     """``(tracked, perfect: (2F, P) normalised, truth: (3F, P), error: (F, P) px)``."""
     scene = scenes.face_scene(100, seed=seed)
-    images, _ = frontend.render(scene)
-    frames, _ = frontend.run_tracker(images, DEFAULT_METHOD, 4, scene.mask(0))
-    _, uv, birth, start = frontend.track_matrix(frames)
-    true_uv, X, visible, _ = frontend.ground_truth(scene, birth, start)
-    tracks = np.flatnonzero(frontend.complete_tracks(birth, uv, visible))
-    tracks = tracks[frontend.evenly_spread(len(tracks))]
-    uv, true_uv = uv[:, tracks], true_uv[:, tracks]
-    return (normalise(frontend.pixel_tracks(uv), scene.K),
-            normalise(frontend.pixel_tracks(true_uv), scene.K),
-            from_frames(X[:, tracks].transpose(0, 2, 1)), np.linalg.norm(uv - true_uv, axis=2))
+    uv, true_uv, X, visible, birth = frontend.tracked(scene)
+    keep = frontend.complete_tracks(birth, uv, visible)
+    uv, true_uv, X = uv[:, keep], true_uv[:, keep], X[:, keep]
+    spread = frontend.evenly_spread(uv.shape[1])
+    return (*frontend.solver_tracks(scene.K, uv, true_uv, X),
+            np.linalg.norm(uv[:, spread] - true_uv[:, spread], axis=2))
 
 
 def early_refit(S, W, weights, report=None):
