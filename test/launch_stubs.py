@@ -46,3 +46,31 @@ def install_stubs(monkeypatch):
             classes[name] = module.__dict__[name] = type(name, (Recorded,), {})
         monkeypatch.setitem(sys.modules, module_name, module)
     return classes
+
+
+def recorded_inside(value):
+    """Every Recorded object inside ``value`` (lists, tuples, dicts, stub arguments)."""
+    if isinstance(value, Recorded):
+        yield value
+        for v in (*value.args, *value.kwargs.values()):
+            yield from recorded_inside(v)
+    elif isinstance(value, (list, tuple)):
+        for v in value:
+            yield from recorded_inside(v)
+    elif isinstance(value, dict):
+        for v in value.values():
+            yield from recorded_inside(v)
+
+
+def launch_entities(path, stubbed):
+    """``(entities, declared, used)`` of the launch file at ``path`` built against the stubs
+    ``stubbed`` (:func:`install_stubs`): its LaunchDescription's entities, the arguments it
+    declares (name -> default value) and the names of every LaunchConfiguration inside it."""
+    description = load_launch(path).generate_launch_description()
+    assert isinstance(description, stubbed['LaunchDescription'])
+    entities = description.args[0]
+    declared = {e.args[0]: e.kwargs['default_value'] for e in entities
+                if isinstance(e, stubbed['DeclareLaunchArgument'])}
+    used = {c.args[0] for c in recorded_inside(entities)
+            if isinstance(c, stubbed['LaunchConfiguration'])}
+    return entities, declared, used

@@ -5,7 +5,7 @@ parameter files exist and name only known parameters. Where ``launch_ros`` is im
 description is also built with the real classes."""
 from pathlib import Path
 
-from launch_stubs import install_stubs, load_launch, Recorded
+from launch_stubs import install_stubs, launch_entities, load_launch
 import pytest
 import yaml
 
@@ -23,27 +23,10 @@ def stubbed(monkeypatch):
     return install_stubs(monkeypatch)
 
 
-def used_configurations(value, stub):
-    """Names of the LaunchConfigurations anywhere inside ``value``."""
-    if isinstance(value, stub):
-        return {value.args[0]}
-    if isinstance(value, Recorded):
-        value = [*value.args, *value.kwargs.values()]
-    if isinstance(value, dict):
-        value = list(value.values())
-    if isinstance(value, (list, tuple)):
-        return set().union(*(used_configurations(v, stub) for v in value))
-    return set()
-
-
 def test_camera_launch_chains_tracker_and_node_in_one_namespace(stubbed):
-    description = load_launch(LAUNCH_FILE).generate_launch_description()
-    assert isinstance(description, stubbed['LaunchDescription'])
-    entities = description.args[0]
-    declared = {e.args[0]: e.kwargs['default_value'] for e in entities
-                if isinstance(e, stubbed['DeclareLaunchArgument'])}
+    entities, declared, used = launch_entities(LAUNCH_FILE, stubbed)
     assert set(declared) == ARGUMENTS
-    assert used_configurations(entities, stubbed['LaunchConfiguration']) == ARGUMENTS
+    assert used == ARGUMENTS
     config = stubbed['LaunchConfiguration']
     share = stubbed['FindPackageShare']('grass_nrsfm_ros')
     for argument, name in (('tracker_params_file', 'tracker.yaml'),

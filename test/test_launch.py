@@ -4,7 +4,7 @@ argument it uses is declared and every parameter it sets exists in the node's sc
 ``launch_ros`` is importable, the description is also built with the real classes."""
 from pathlib import Path
 
-from launch_stubs import install_stubs, load_launch, Recorded
+from launch_stubs import install_stubs, launch_entities, load_launch
 import pytest
 
 from grass_nrsfm_ros import params
@@ -20,32 +20,13 @@ def stubbed(monkeypatch):
     return install_stubs(monkeypatch)
 
 
-def walk(value):
-    """Every Recorded object inside ``value`` (lists, tuples, dicts, stub arguments)."""
-    if isinstance(value, Recorded):
-        yield value
-        for v in (*value.args, *value.kwargs.values()):
-            yield from walk(v)
-    elif isinstance(value, (list, tuple)):
-        for v in value:
-            yield from walk(v)
-    elif isinstance(value, dict):
-        for v in value.values():
-            yield from walk(v)
-
-
 def test_launch_file_builds_and_names_only_known_parameters(stubbed):
-    description = load_launch(LAUNCH_FILE).generate_launch_description()
-    assert isinstance(description, stubbed['LaunchDescription'])
-    entities = description.args[0]
-    declared = {e.args[0]: e.kwargs['default_value'] for e in entities
-                if isinstance(e, stubbed['DeclareLaunchArgument'])}
+    entities, declared, used = launch_entities(LAUNCH_FILE, stubbed)
     assert set(declared) == ARGUMENTS
     assert declared['rviz'] == 'false' and declared['record_path'] == ''
     share = stubbed['FindPackageShare']('grass_nrsfm_ros')
     assert declared['params_file'] == stubbed['PathJoinSubstitution'](
         [share, 'config', 'params.yaml'])
-    used = {c.args[0] for c in walk(entities) if isinstance(c, stubbed['LaunchConfiguration'])}
     assert used <= set(declared) and used == ARGUMENTS
 
     nodes = {n.kwargs['package']: n for n in entities if isinstance(n, stubbed['Node'])}

@@ -248,22 +248,28 @@ def through_the_pinhole(feeder, pinhole, least):
         np.testing.assert_allclose(uv, W[2 * f:2 * f + 2, ids.astype(int)].T, atol=2e-3)
 
 
+def matched_camera_info_publisher(feeder):
+    """A sensor-data QoS ``camera_info`` publisher on ``feeder``'s node, once the node under
+    test reports it (matching is not symmetric: the node itself must have seen it)."""
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import CameraInfo
+    created = time.monotonic()
+    publisher = feeder.node.create_publisher(CameraInfo, 'camera_info', qos_profile_sensor_data)
+    assert feeder.wait_for(lambda: publisher.get_subscription_count() > 0 and int(
+        feeder.node_reports(created).get('camera_info publishers', 0)) >= 1, 20)
+    return publisher
+
+
 @pytest.mark.ros
 def test_node_takes_k_from_camera_info(ros_env, tmp_path, pinhole):
     pytest.importorskip('rclpy')
-    from rclpy.qos import qos_profile_sensor_data
     from sensor_msgs.msg import CameraInfo
     from doubles import paced
     from rosutil import node_with_feeder
     log = tmp_path / 'node.log'
     with node_with_feeder(ros_env, log, ['-p', 'window_size:=20', '-p', 'window_stride:=10'],
                           points_depth=30) as (proc, feeder):
-        created = time.monotonic()
-        info_pub = feeder.node.create_publisher(CameraInfo, 'camera_info',
-                                                qos_profile_sensor_data)
-        # matching is not symmetric: wait until the node itself reports the publisher
-        assert feeder.wait_for(lambda: info_pub.get_subscription_count() > 0 and int(
-            feeder.node_reports(created).get('camera_info publishers', 0)) >= 1, 20)
+        info_pub = matched_camera_info_publisher(feeder)
         for header, tracks in paced(node_frames(pinhole, 30), 1 / 30):    # a camera's rate
             info_pub.publish(CameraInfo(header=header, width=640, height=480,
                                         k=[FX, 0.0, CX, 0.0, FY, CY, 0.0, 0.0, 1.0]))
@@ -290,8 +296,6 @@ def test_a_silent_camera_info_publisher_holds_tracks_back_one_second(
     """A camera_info publisher that never publishes: the tracks of the first second (stamps)
     are dropped, said once; then they go out as pixels (orthographic, said once)."""
     pytest.importorskip('rclpy')
-    from rclpy.qos import qos_profile_sensor_data
-    from sensor_msgs.msg import CameraInfo
     from rosutil import node_with_feeder, publish
     from grass_nrsfm_ros import node
     log = tmp_path / 'node.log'
@@ -302,12 +306,7 @@ def test_a_silent_camera_info_publisher_holds_tracks_back_one_second(
         tracks.header.stamp = header.stamp
     with node_with_feeder(ros_env, log, ['-p', 'window_size:=20', '-p', 'window_stride:=10'],
                           points_depth=30) as (proc, feeder):
-        created = time.monotonic()
-        info_pub = feeder.node.create_publisher(CameraInfo, 'camera_info',
-                                                qos_profile_sensor_data)
-        # matching is not symmetric: wait until the node itself reports the publisher
-        assert feeder.wait_for(lambda: info_pub.get_subscription_count() > 0 and int(
-            feeder.node_reports(created).get('camera_info publishers', 0)) >= 1, 20)
+        matched_camera_info_publisher(feeder)        # it never publishes; its node holds it
         publish(feeder, [tracks for _, tracks in frames])
         assert feeder.wait_for(lambda: len(feeder.points) >= 5, 60), log.read_text()
         assert feeder.wait_for(
