@@ -157,7 +157,7 @@ def evenly_spread(P):
     return np.linspace(0, P - 1, min(P, RECONSTRUCTION_POINTS)).astype(int)
 
 
-def tracked(scene, **options):
+def track_scene(scene, **options):
     """``(uv, true_uv: (F, P, 2), X: (F, P, 3), visible: (F, P), birth: (P,))``: the default
     tracker (step 4, ``options`` its keywords) over ``scene`` rendered from its frame-0 mask,
     and the truth of every track (:func:`track_matrix`, :func:`ground_truth`)."""
@@ -184,21 +184,20 @@ def reconstruction(scene, uv, true_uv, X):
         return {'reconstruction_points': P}
     tracked, perfect, S = solver_tracks(scene.K, uv, true_uv, X)
     out = {'reconstruction_points': int(S.shape[1]), 'complete_tracks': int(P)}
-    tracks = {'tracked': tracked, 'perfect': perfect}
-    for name, W in tracks.items():
+    for name, W in (('tracked', tracked), ('perfect', perfect)):
         out[f'e3d_{name}'] = e3d(GrassmannNRSfM().fit(W).S, S, scale=True)
         out[f'e3d_{name}_perspective'] = e3d(
             GrassmannNRSfM(projection='perspective').fit(W).S, S, scale=True)
     out['e3d_ratio'] = out['e3d_tracked'] / out['e3d_perfect']
     out['e3d_ratio_perspective'] = (out['e3d_tracked_perspective'] /
                                     out['e3d_perfect_perspective'])
-    W = tracks['tracked']
-    out['e3d_tracked_rigid'] = e3d(rigid_factorisation(W)[1], S, scale=True)
+    out['e3d_tracked_rigid'] = e3d(rigid_factorisation(tracked)[1], S, scale=True)
     out['e3d_perspective_over_rigid'] = (out['e3d_tracked_perspective'] /
                                          out['e3d_tracked_rigid'])
     if 'sheet' in scene.name:                   # the sheet option (docs/decisions/0440)
         out['e3d_tracked_sheet'] = e3d(GrassmannNRSfM(projection='perspective',
-                                                      surface='sheet').fit(W).S, S, scale=True)
+                                                      surface='sheet').fit(tracked).S, S,
+                                       scale=True)
         out['e3d_sheet_over_rigid'] = out['e3d_tracked_sheet'] / out['e3d_tracked_rigid']
     return out
 

@@ -23,7 +23,7 @@ from .. import frontend
 
 def tracked_face(seed):
     """``(uv, true_uv: (F, P, 2), visible: (F, P), birth: (P,))`` of the shipped tracker."""
-    uv, true_uv, _, visible, birth = frontend.tracked(scenes.face_scene(100, seed=seed))
+    uv, true_uv, _, visible, birth = frontend.track_scene(scenes.face_scene(100, seed=seed))
     return uv, true_uv, visible, birth
 
 

@@ -36,7 +36,7 @@ def face_row(seed, sigma):
 
 def frontend_row(seed):
     scene = scenes.face_scene(100, seed=seed)
-    uv, true_uv, X, visible, birth = frontend.tracked(scene)
+    uv, true_uv, X, visible, birth = frontend.track_scene(scene)
     keep = frontend.complete_tracks(birth, uv, visible)
     x, _, truth = frontend.solver_tracks(scene.K, uv[:, keep], true_uv[:, keep], X[:, keep])
     return report(f'front-end face {seed}', figures(x, truth))

@@ -32,12 +32,12 @@ EARLY_FRAMES = 10
 def face_tracks(seed):
     """``(tracked, perfect: (2F, P) normalised, truth: (3F, P), error: (F, P) px)``."""
     scene = scenes.face_scene(100, seed=seed)
-    uv, true_uv, X, visible, birth = frontend.tracked(scene)
-    keep = frontend.complete_tracks(birth, uv, visible)
-    uv, true_uv, X = uv[:, keep], true_uv[:, keep], X[:, keep]
-    spread = frontend.evenly_spread(uv.shape[1])
+    uv, true_uv, X, visible, birth = frontend.track_scene(scene)
+    tracks = np.flatnonzero(frontend.complete_tracks(birth, uv, visible))
+    tracks = tracks[frontend.evenly_spread(len(tracks))]
+    uv, true_uv, X = uv[:, tracks], true_uv[:, tracks], X[:, tracks]
     return (*frontend.solver_tracks(scene.K, uv, true_uv, X),
-            np.linalg.norm(uv[:, spread] - true_uv[:, spread], axis=2))
+            np.linalg.norm(uv - true_uv, axis=2))
 
 
 def early_refit(S, W, weights, report=None):
