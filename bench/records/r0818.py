@@ -6,7 +6,7 @@
 occlusion blocks): the unseen entries' error (relative to their centred truth) of the shipped
 completion (:func:`.missing.complete`, the model chosen on held-out runs of single tracks) and
 of :func:`als_fill` at ranks 2-8, each model's error on held-out *blocks* of seen entries
-(:func:`block_held_out`, drawn as ``synthetic.occlusion_mask`` draws the occlusion), the model
+(:func:`block_held_out`: ``synthetic.occlusion_mask``'s blocks, 5 % of the entries), the model
 those blocks choose, and the e3D of the masked solve given that completion (``fit(W,
 filled=)``) over the complete solve's.
 """
@@ -51,26 +51,14 @@ def als_fill(W, observed, rank, ridge=RIDGE, sweeps=200, tol=1e-6):
     return np.where(observed, W, low)
 
 
-def block_held_out(seen, uv, rng, share=0.05):
-    """``(F, P)`` bool: about ``share`` of the ``seen: (F, P)`` entries held out in blocks as
-    :func:`synthetic.occlusion_mask` draws them (a track's nearest tracks in ``uv: (P, 2)``
-    over a run of frames); every track keeps 2 seen frames and every frame 4 tracks."""
-    F, P = seen.shape
-    held, free = np.zeros((F, P), bool), np.ones(P, bool)
-    for _ in range(1000):
-        if held.sum() >= share * seen.sum() or not free.any():
-            break
-        k = max(1, int(P * rng.uniform(0.02, 0.10)))
-        centre_track = rng.choice(np.flatnonzero(free))
-        near = np.argsort(np.where(free, ((uv - uv[centre_track]) ** 2).sum(1), np.inf))[:k]
-        length = max(1, int(F * rng.uniform(0.1, 0.5)))
-        first = rng.integers(0, F - length + 1)
-        block = np.zeros((F, P), bool)
-        block[first:first + length, near] = True
-        rest = seen & ~(held | (block & seen))
-        if (rest.sum(0) >= 2).all() and (rest.sum(1) >= 4).all():
-            held |= block & seen
-            free[near] = False
+def block_held_out(filled, seen, rng, share=0.05):
+    """``(F, P)`` bool: the ``seen: (F, P)`` entries of :func:`synthetic.occlusion_mask`'s
+    blocks hiding ``share`` of the entries of ``filled: (2F, P)`` (the tracks completed, for
+    their frame-0 neighbourhoods), less the tracks that would keep under 2 seen frames and
+    the frames that would keep under 4 seen tracks."""
+    held = seen & ~synthetic.occlusion_mask(filled, share, rng)
+    held &= ((seen & ~held).sum(axis=0) >= 2)[None, :]
+    held &= ((seen & ~held).sum(axis=1) >= 4)[:, None]
     return held
 
 
@@ -86,13 +74,12 @@ def row(kind, seed):
     unseen = ~observed
     scale = np.linalg.norm((seq.W - seq.W.mean(1, keepdims=True))[unseen])
     error = lambda X: np.linalg.norm((X - seq.W)[unseen]) / scale       # noqa: E731
-    uv = np.stack([(W[a::2] * visible).sum(0) / visible.sum(0) for a in (0, 1)], axis=1)
-    held = block_held_out(visible, uv, np.random.default_rng(0))
+    shipped, shipped_model = complete(W, visible)
+    held = block_held_out(shipped, visible, np.random.default_rng(0))
     train, test = np.repeat(visible & ~held, 2, axis=0), np.repeat(held, 2, axis=0)
     models = list(COMPLETION_MODELS) + [('als', r) for r in RANKS]
     held_error = [np.linalg.norm((fill(W, train, m) - W)[test]) for m in models]
     chosen = models[int(np.argmin(held_error))]
-    shipped, shipped_model = complete(W, visible)
     filled = fill(W, observed, chosen)
     complete_e3d = e3d(GrassmannNRSfM().fit(seq.W).S, seq.S)
     masked = GrassmannNRSfM().fit(np.where(observed, seq.W, np.nan))
