@@ -132,10 +132,26 @@ class DepthIntegrator:
 
     def __call__(self, g, z_anchor, frames=slice(None)):
         mean_g = 0.5 * (g[:, self.i] + g[:, self.j])
-        target = self.size[frames] * np.where((mean_g * self.d[frames]).sum(-1) >= 0, 1.0,
-                                              -1.0)                    # (F', E)
+        return self.from_signs(np.where((mean_g * self.d[frames]).sum(-1) >= 0, 1.0, -1.0),
+                               z_anchor, frames)
+
+    def from_signs(self, edge_signs, z_anchor, frames=slice(None)):
+        """``(F', P)`` centred depths whose edge differences are ``edge_signs: (F', E)``
+        times the edge sizes in least squares, plus ``anchor`` times the distance to
+        ``z_anchor: (F', P)``."""
+        target = self.size[frames] * edge_signs
         z = self.solve(self.anchor * z_anchor.T + self.incidence.T @ target.T).T
         return z - z.mean(axis=1, keepdims=True)
+
+    def edge_signs(self, z):
+        """``(F', E)`` of +-1: the signs of the edge differences of the depths ``z: (F',
+        P)``."""
+        return np.where(z[:, self.j] - z[:, self.i] >= 0, 1.0, -1.0)
+
+    def residual(self, z, frames=slice(None)):
+        """``(F',)``: per frame, the summed squared misfit of the depths ``z: (F', P)``'s edge
+        differences to the edge sizes (up to their signs): the isometry residual."""
+        return ((np.abs(z[:, self.j] - z[:, self.i]) - self.size[frames]) ** 2).sum(axis=1)
 
 
 def integrate_depths(X, nbr, lengths, g, z_anchor, anchor=ANCHOR):

@@ -16,12 +16,17 @@ first-order sign agreement of :func:`.isometry.synchronised_signs` cannot hold. 
 2. From a start frame with those signs, the depths are integrated
    (:func:`.isometry.integrate_depths`' least squares), the frame's 3D shape is carried to the
    next frame by the orthographic camera that best maps it onto the next image (a 2 x 3 fit
-   made orthonormal, its third row the depth direction), and the next frame's signs are those
-   of the carried depths' gradients; its depths are integrated again, weakly tied to the
-   carried ones; forwards and backwards to the ends (:func:`carry`). No rotation or low-rank
-   solve is needed.
-3. Several start frames (every ``start_step``-th) are tried, and the sequence whose signs have
-   the lowest total cost ``sum_f s_f^T M_f s_f`` is kept.
+   made orthonormal, its third row the depth direction), and the next frame's depths are fitted
+   to its edge sizes near the carried ones: from three starts (the signs of the carried
+   depths' gradients, the frame's candidate signs, the carried depths), the edges' signs are
+   taken from the depths and the depths integrated again, a few sweeps (lowering the isometry
+   residual ``sum_e (|dz_e| - size_e)^2`` plus the tie), and the lowest fit is kept
+   (:func:`frame_depths`); forwards and backwards to the ends (:func:`carry`). No rotation or
+   low-rank solve is needed.
+3. Every ``start_step``-th frame starts such a run. Per frame, one run's depths are chosen:
+   the sequence with the lowest summed isometry residual plus the tie between consecutive
+   frames (:func:`consistent_path`, Viterbi), so that a run that went astray where a frame is
+   ambiguous (a fold mirrored about a face-on ruling fits as well) is left there.
 
 ``x, y`` are the centred tracks; depths are centred per frame. Orthographic tracks only (on
 pinhole tracks use :mod:`.max_depth`). Complete tracks only.
@@ -43,8 +48,11 @@ from .measurement import as_frames, from_frames
 FIRST_ORDER = 1.0
 #: every this many frames is a start frame
 START_STEP = 2
-#: weight tying a frame's depths to the carried ones (relative to unit edge weights)
-CARRY_ANCHOR = isometry.ANCHOR
+#: weight tying a frame's depths to the carried ones (relative to unit edge weights), in each
+#: frame's fit and between frames in the choice of the path
+CARRY_WEIGHT = 1e-2
+#: sweeps of the edge signs from the depths in each frame's fit
+SIGN_SWEEPS = 5
 
 
 def bounded(g):
@@ -139,23 +147,66 @@ def carried_depths(X_prev, xy):
     return z - z.mean()
 
 
-def carry(X, g, nbr, integrate, start, start_signs):
-    """``(z (F, P), signs (F, P))``: the depths of frame ``start`` from ``start_signs``, then
-    each frame's from the signs of the previous frame's shape carried onto its image
+def refined(integrate, z, z_anchor, frame, sweeps=SIGN_SWEEPS):
+    """``(P,)``: the depths ``z`` of ``frame`` integrated again from their own edge signs,
+    ``sweeps`` times: each sweep lowers its isometry residual plus the tie to ``z_anchor:
+    (P,)`` (a majorisation of ``sum_e (|dz_e| - size_e)^2``)."""
+    for _ in range(sweeps):
+        z = integrate.from_signs(integrate.edge_signs(z[None]), z_anchor[None], [frame])[0]
+    return z
+
+
+def frame_depths(integrate, g, X, nbr, frame, carried, candidate):
+    """``(P,)`` depths of ``frame`` given the ``carried: (P,)`` ones: of three starts (the
+    signs of the carried depths' gradients, the frame's spatial ``candidate`` signs turned to
+    agree with those, the carried depths themselves), each :func:`refined`, the one with the
+    lowest isometry residual plus the tie to the carried depths."""
+    signs = isometry.solver_signs(g[[frame]], np.vstack([X[frame, :2], carried])[None], nbr)[0]
+    turned = candidate * (1.0 if candidate @ signs >= 0 else -1.0)
+    starts = [integrate(g[[frame]] * s[None, :, None], carried[None], [frame])[0]
+              for s in (signs, turned)] + [carried]
+    fits = [refined(integrate, z, carried, frame) for z in starts]
+    costs = [integrate.residual(z[None], [frame])[0]
+             + integrate.anchor * ((z - carried) ** 2).sum() for z in fits]
+    return fits[int(np.argmin(costs))]
+
+
+def carry(X, g, nbr, integrate, start, candidates):
+    """``z (F, P)``: the depths of frame ``start`` from its ``candidates: (F, P)`` signs, then
+    each frame's :func:`frame_depths` from the previous frame's shape carried onto its image
     (module docstring, step 2); ``integrate`` the frames' :class:`.isometry.DepthIntegrator`."""
     F, _, P = X.shape
     z = np.zeros((F, P))
-    signs = np.ones((F, P))
-    signs[start] = start_signs
-    z[start] = integrate(g[[start]] * start_signs[None, :, None], np.zeros((1, P)), [start])[0]
+    first = integrate(g[[start]] * candidates[start][None, :, None], np.zeros((1, P)), [start])[0]
+    z[start] = refined(integrate, first, first, start)
     for order in (range(start + 1, F), range(start - 1, -1, -1)):
         for f in order:
             prev = f - 1 if f > start else f + 1
             zc = carried_depths(np.vstack([X[prev, :2], z[prev]]), X[f, :2])
-            s = isometry.solver_signs(g[[f]], np.vstack([X[f, :2], zc])[None], nbr)[0]
-            signs[f] = s
-            z[f] = integrate(g[[f]] * s[None, :, None], zc[None], [f])[0]
-    return z, signs
+            z[f] = frame_depths(integrate, g, X, nbr, f, zc, candidates[f])
+    return z
+
+
+def consistent_path(X, runs, integrate):
+    """``(z (F, P), path (F,))``: per frame one of the ``runs: (C, F, P)``' depths, the
+    sequence minimising the summed isometry residuals plus, between consecutive frames, the
+    tie of each frame's depths to the previous frame's carried onto its image (Viterbi)."""
+    C, F, _ = runs.shape
+    residual = np.stack([integrate.residual(run) for run in runs], axis=1)        # (F, C)
+    cost = residual[0].copy()
+    back = np.zeros((F, C), dtype=np.int64)
+    for f in range(1, F):
+        carried = np.stack([carried_depths(np.vstack([X[f - 1, :2], run[f - 1]]), X[f, :2])
+                            for run in runs])                                      # (C, P)
+        tie = ((runs[None, :, f] - carried[:, None]) ** 2).sum(-1)               # (from, to)
+        total = cost[:, None] + integrate.anchor * tie
+        back[f] = np.argmin(total, axis=0)
+        cost = total[back[f], np.arange(C)] + residual[f]
+    path = np.zeros(F, dtype=np.int64)
+    path[-1] = int(np.argmin(cost))
+    for f in range(F - 1, 0, -1):
+        path[f - 1] = back[f, path[f]]
+    return runs[path, np.arange(F)], path
 
 
 def transport_depths(W, *, k=isometry.NEIGHBOURS, quantile=isometry.LENGTH_QUANTILE,
@@ -170,22 +221,20 @@ def transport_depths(W, *, k=isometry.NEIGHBOURS, quantile=isometry.LENGTH_QUANT
     nbr = isometry.neighbours(W, k)
     lengths = isometry.edge_lengths(X, nbr, quantile)
     g, _ = isometry.local_gradients(X, nbr, lengths)
-    candidates, costs = spatial_signs(X, bounded(g), nbr, first)
-    integrate = isometry.DepthIntegrator(X, nbr, lengths, CARRY_ANCHOR)
-    best = None
-    for start in range(0, F, max(1, int(start_step))):
-        z, signs = carry(X, g, nbr, integrate, start, candidates[start])
-        total = sum(float(s @ (M @ s)) for s, M in zip(signs, costs))
-        if best is None or total < best[0]:
-            best = (total, z, start)
-    X[:, 2] = best[1]
-    return from_frames(X), {'start_frame': best[2], 'sign_cost': best[0]}
+    candidates, _ = spatial_signs(X, bounded(g), nbr, first)
+    integrate = isometry.DepthIntegrator(X, nbr, lengths, CARRY_WEIGHT)
+    starts = np.arange(0, F, max(1, int(start_step)))
+    runs = np.stack([carry(X, g, nbr, integrate, start, candidates) for start in starts])
+    X[:, 2], path = consistent_path(X, runs, integrate)
+    info = {'start_frames': starts[np.unique(path)].tolist(),
+            'isometry_residual': float(integrate.residual(X[:, 2]).sum())}
+    return from_frames(X), info
 
 
 @dataclass
 class TransportSheetResult:
-    """``S: (3F, P)`` camera frame (centred tracks, centred depths), ``info``: the start frame
-    kept and its total sign cost."""
+    """``S: (3F, P)`` camera frame (centred tracks, centred depths), ``info``: the start frames
+    whose runs the chosen path takes (``start_frames``) and its summed isometry residual."""
     S: np.ndarray
     info: dict = field(default_factory=dict)
 

@@ -384,7 +384,7 @@ def _transport_report(result):
     """The :class:`SolverReport` of a :class:`.sheet_transport.TransportSheetNRSfM` result."""
     report = SolverReport(stages=['sheet_transport'], converged=True, reason='signs carried',
                           iterations=1)
-    report.notes.append('orthographic sheet: local-isometry depths, signs carried from frame '
-                        f"{result.info['start_frame']} (total sign cost "
-                        f"{result.info['sign_cost']:.3g}; docs/decisions/0714)")
+    report.notes.append('orthographic sheet: local-isometry depths carried from frames '
+                        f"{result.info['start_frames']} (isometry residual "
+                        f"{result.info['isometry_residual']:.3g}; docs/decisions/0714)")
     return report
