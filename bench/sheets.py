@@ -12,9 +12,10 @@ factorisation's; the issue's bar is <= 0.6 for every sheet):
 * ``sheet_registered``: the prior inside the estimation (:class:`isometry.SheetNRSfM` with
   ``alternations=1``): the rotations registered to the 'sync' sheet depths, the solver run
   again from them and from those shapes, its depths refined again (docs/decisions/0706);
-* ``sheet_transport``: local-isometry depths from the tracks alone, their signs carried from
-  frame to frame by the best orthographic camera (:class:`sheet_transport.TransportSheetNRSfM`,
-  orthographic only; record 0714);
+* ``sheet_transport``: local-isometry depths from the tracks alone, each frame's fitted to its
+  edge sizes near the shape carried from the frame before by the best orthographic camera,
+  runs from several start frames joined by a Viterbi path
+  (:class:`sheet_transport.TransportSheetNRSfM`, orthographic only; record 0714);
 * ``max_depth``: Chhatkuli et al.'s maximum-depth heuristic
   (:class:`max_depth.MaxDepthNRSfM`, pinhole only: it needs the rays' divergence; record
   0709).
