@@ -283,7 +283,7 @@ def measure(args, frames_folder, K):
                sheet_seconds=sheet_seconds, solve_seconds=solve_seconds,
                iterations=result.report.iterations, S_points=S_points, S_refined=S_refined,
                live_seconds=live_seconds, live_stats=live_stats,
-               surface_variation=decided.variation,
+               surface_variation=decided.value,
                surface_sheet=decided.sheet)
     if cache is not None:
         arrays = {k: v for k, v in run.items() if k != 'live_stats'}

@@ -202,11 +202,14 @@ SOLVER_PARAMS = (
           "et al.'s maximum-depth heuristic on the normalised tracks (tens of seconds per "
           'sequence offline; docs/decisions/0709, 0440; live, each frame from the lengths '
           'the mapping rebuilds at every window, 0732); orthographic, local-isometry '
-          "depths with their signs carried from frame to frame (seconds; 0714). 'auto': "
-          "through a pinhole, a solve without a warm start of complete tracks is 'sheet' when "
-          "the maximum-depth depths on 10 of its frames keep their edge lengths, else 'any' "
-          '(0726; live, checked on the second window and as the sequence doubles); '
-          "orthographic, 'any'. Complete tracks only for 'sheet'."),
+          'depths fitted frame by frame near the shape carried from the frame before '
+          "(seconds; 0714, 0737). 'auto': "
+          "a solve without a warm start of complete tracks (50 or more) is 'sheet' when, "
+          'through a pinhole, the maximum-depth depths on 10 of its frames keep their edge '
+          'lengths (0726; live, checked on the second window and as the sequence doubles) '
+          'or, orthographic, the orthographic sheet depths on 20 frames x 200 tracks fit '
+          "their edge sizes (0738; offline only), else 'any'. Complete tracks only for "
+          "'sheet'."),
     _mode('robust', 'auto', ('auto', 'never', 'cauchy'),
           "'cauchy': tracks whose residual against a low-rank approximation of all tracks, "
           "where their neighbours' agrees, or against the combination of their nearest tracks, "

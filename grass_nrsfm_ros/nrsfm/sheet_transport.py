@@ -226,15 +226,17 @@ def transport_depths(W, *, k=isometry.NEIGHBOURS, quantile=isometry.LENGTH_QUANT
     starts = np.arange(0, F, max(1, int(start_step)))
     runs = np.stack([carry(X, g, nbr, integrate, start, candidates) for start in starts])
     X[:, 2], path = consistent_path(X, runs, integrate)
-    info = {'start_frames': starts[np.unique(path)].tolist(),
-            'isometry_residual': float(integrate.residual(X[:, 2]).sum())}
+    residual = float(integrate.residual(X[:, 2]).sum())
+    info = {'start_frames': starts[np.unique(path)].tolist(), 'isometry_residual': residual,
+            'relative_residual': residual / max(float((integrate.size ** 2).sum()), 1e-300)}
     return from_frames(X), info
 
 
 @dataclass
 class TransportSheetResult:
     """``S: (3F, P)`` camera frame (centred tracks, centred depths), ``info``: the start frames
-    whose runs the chosen path takes (``start_frames``) and its summed isometry residual."""
+    whose runs the chosen path takes (``start_frames``), its summed isometry residual and that
+    over the summed squared edge sizes (``relative_residual``)."""
     S: np.ndarray
     info: dict = field(default_factory=dict)
 

@@ -118,6 +118,9 @@ class GrassmannNRSfM:
             if surface.applies(params, init, visible, tracks):
                 return self._surface_decided(tracks, params, progress, beta_max)
             return self._perspective(W, init, progress, beta_max)
+        if surface.applies(params, init, visible, np.asarray(W)):
+            return self._surface_decided(np.asarray(W, dtype=np.float64), params, progress,
+                                         beta_max)
         with one_blas_thread():
             start, timer = time.perf_counter(), Timer()
             problem = Problem.from_tracks(W, init, visible, params['random_state'], filled)
@@ -206,14 +209,21 @@ class GrassmannNRSfM:
                            blocks=np.array([0, F]), report=report)
 
     def _surface_decided(self, W, params, progress, beta_max):
-        """``surface='auto'`` through a pinhole: the stage 'surface' decides between the sheet
-        (:meth:`_sheet`) and the projective-depth iteration (:meth:`_perspective`)."""
+        """``surface='auto'``: the stage 'surface' decides between the sheet (:meth:`_sheet`)
+        and, through a pinhole, the projective-depth iteration (:meth:`_perspective`), else
+        the low-rank chain."""
         start = time.perf_counter()
+        pinhole = params['projection'] == 'perspective'
         with one_blas_thread():
-            decided = surface.check(W)
+            decided = surface.check(W) if pinhole else surface.check_orthographic(W)
         seconds = time.perf_counter() - start
-        result = (self._sheet(W, params, None, decided.fitted) if decided.sheet
-                  else self._perspective(W, None, progress, beta_max))
+        if decided.sheet:
+            result = self._sheet(W, params, None, decided.fitted)
+        elif pinhole:
+            result = self._perspective(W, None, progress, beta_max)
+        else:
+            result = GrassmannNRSfM(**{**self.get_params(), 'surface': 'any'}).fit(
+                W, progress=progress, beta_max=beta_max)
         report = result.report
         report.stages.insert(0, surface.NAME)
         report.notes.insert(0, surface.note(decided))

@@ -1,13 +1,19 @@
-"""Stage 'surface' (``surface='auto'``, cold perspective solves of complete tracks): whether the
-normalised tracks are a sheet that bends without stretching. The maximum-depth heuristic
-(:class:`..max_depth.MaxDepthNRSfM`) runs on CHECK_FRAMES frames spread over the sequence; its
-depths keep the lengths of their neighbour edges (:func:`..inextensible.length_variation`
-below SHEET_VARIATION) where the surface does not stretch, and cannot where it does (a face's
-expressions, a waving cloth that stretches). A sheet is then reconstructed by the heuristic,
-anything else by the low-rank chain (docs/decisions/0726).
+"""Stage 'surface' (``surface='auto'``, cold solves of complete tracks): whether the tracks are a
+sheet that bends without stretching. A sheet is then reconstructed by a sheet model, anything
+else by the low-rank chain.
 
-Speaks ``W: (2F, P)`` normalised tracks. Report: stage ``surface``, a note with the variation
-and the decision.
+* Through a pinhole (normalised tracks): the maximum-depth heuristic
+  (:class:`..max_depth.MaxDepthNRSfM`) runs on CHECK_FRAMES frames spread over the sequence; its
+  depths keep the lengths of their neighbour edges (:func:`..inextensible.length_variation`
+  below SHEET_VARIATION) where the surface does not stretch, and cannot where it does (a face's
+  expressions, a waving cloth that stretches) (docs/decisions/0726).
+* Orthographic: the orthographic sheet model (:class:`..sheet_transport.TransportSheetNRSfM`)
+  runs on at most CHECK_TRACKS tracks (spread over their order) of ORTHOGRAPHIC_CHECK_FRAMES
+  frames; a sheet where its depths fit their edge sizes (relative isometry residual below
+  SHEET_RESIDUAL) (docs/decisions/0738).
+
+Speaks ``W: (2F, P)`` tracks. Report: stage ``surface``, a note with the measure and the
+decision.
 """
 from dataclasses import dataclass, field
 
@@ -16,6 +22,7 @@ import numpy as np
 from ..inextensible import length_variation
 from ..max_depth import MaxDepthNRSfM
 from ..measurement import frame_rows, spread_frames
+from ..sheet_transport import TransportSheetNRSfM
 
 NAME = 'surface'
 #: frames (spread over the sequence) the heuristic runs on for the decision
@@ -24,26 +31,34 @@ CHECK_FRAMES = 10
 SHEET_VARIATION = 0.025
 #: fewer tracks than this: no decision (the low-rank chain)
 MIN_POINTS = 50
+#: orthographic: the sheet model's tracks and frames for the decision
+CHECK_TRACKS = 200
+ORTHOGRAPHIC_CHECK_FRAMES = 20
+#: orthographic: a sheet when the sheet model's isometry residual over its squared edge sizes
+#: is below this
+SHEET_RESIDUAL = 0.015
 
 
 @dataclass(frozen=True)
 class Check:
-    """The edge-length ``variation`` of the heuristic's depths on ``frames`` x ``tracks``
-    (its anchors), and whether the tracks are taken for a ``sheet``; ``fitted``: the
-    heuristic's result when the check ran on every frame (the sheet's reconstruction then),
-    else None."""
-    variation: float
+    """The sheet measure ``value`` on ``frames`` x ``tracks`` (through a pinhole the edge-length
+    variation of the maximum-depth depths on its anchors; orthographic the sheet model's
+    relative isometry residual), and whether the tracks are taken for a ``sheet``;
+    ``fitted``: the heuristic's result when the pinhole check ran on every frame (the sheet's
+    reconstruction then), else None."""
+    value: float
     frames: int
     tracks: int
     sheet: bool
     fitted: object = field(default=None, repr=False, compare=False)
+    projection: str = 'perspective'
 
 
 def applies(params, init, visible, W):
-    """``surface='auto'`` under ``projection='perspective'``, no warm start, complete tracks
-    ``W: (2F, P)`` with P >= MIN_POINTS."""
-    return (params['surface'] == 'auto' and params['projection'] == 'perspective'
-            and init is None and (visible is None or bool(np.all(visible)))
+    """``surface='auto'``, no warm start, complete tracks ``W: (2F, P)`` with P >=
+    MIN_POINTS."""
+    return (params['surface'] == 'auto' and init is None
+            and (visible is None or bool(np.all(visible)))
             and W.shape[1] >= MIN_POINTS and bool(np.isfinite(W).all()))
 
 
@@ -57,8 +72,23 @@ def check(W):
                  variation < SHEET_VARIATION, result if keys.size == F else None)
 
 
+def check_orthographic(W):
+    """The :class:`Check` of the orthographic tracks ``W: (2F, P)``."""
+    keys = spread_frames(W.shape[0] // 2, ORTHOGRAPHIC_CHECK_FRAMES)
+    tracks = np.unique(np.linspace(0, W.shape[1] - 1, min(CHECK_TRACKS, W.shape[1]))
+                       .round().astype(int))
+    residual = TransportSheetNRSfM().fit(W[frame_rows(keys, 2)][:, tracks]).info[
+        'relative_residual']
+    return Check(residual, int(keys.size), int(tracks.size), residual < SHEET_RESIDUAL,
+                 projection='orthographic')
+
+
 def note(c):
     """The report's line for the :class:`Check` ``c``."""
+    if c.projection == 'orthographic':
+        return (f"surface 'auto': {'a sheet (local isometry)' if c.sheet else 'not a sheet'}: "
+                f'the sheet model on {c.frames} frames x {c.tracks} tracks fits its edge sizes '
+                f'to a relative residual {c.value:.4f} (threshold {SHEET_RESIDUAL:g})')
     return (f"surface 'auto': {'a sheet (maximum depth)' if c.sheet else 'not a sheet'}: "
             f'edge lengths of the maximum-depth depths on {c.frames} frames x {c.tracks} tracks '
-            f'vary {c.variation:.4f} (threshold {SHEET_VARIATION:g})')
+            f'vary {c.value:.4f} (threshold {SHEET_VARIATION:g})')
