@@ -60,8 +60,8 @@ def test_smoothness_reaches_lower_shape_roughness():
     seq = make_sequence('bending', 30, 200, camera='shaky', seed=0)
     # the prior's effect on the ADMM's shapes, before the inextensible depths (which, since
     # they apply from 100 tracks, replace much of the depth: 0.81 instead of < 0.8 with them)
-    plain = GrassmannNRSfM(inextensible='never').fit(seq.W)
-    smooth = GrassmannNRSfM(smoothness=1e-2, inextensible='never').fit(seq.W)
+    plain = GrassmannNRSfM(surface='any', inextensible='never').fit(seq.W)
+    smooth = GrassmannNRSfM(surface='any', smoothness=1e-2, inextensible='never').fit(seq.W)
 
     def roughness(res):
         S = res.R.transpose(0, 2, 1) @ res.S.reshape(30, 3, -1)

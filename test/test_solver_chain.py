@@ -52,7 +52,7 @@ def test_report_lists_stages_and_solves_and_no_solver_is_built_inside(monkeypatc
         states.append(1)
         state_init(self, *args, **kwargs)
     monkeypatch.setattr(admm.AdmmState, '__init__', counting_state)
-    report = GrassmannNRSfM().fit(seq.W).report
+    report = GrassmannNRSfM(surface='any').fit(seq.W).report
     assert len(built) == 1 and len(fits) == 1
     reasons = [s[0] for s in report.solves]
     assert len(report.solves) == len(states) >= 3
