@@ -53,8 +53,8 @@ def test_a_rendered_face_is_not_a_sheet():
 
 
 def test_no_decision_without_a_cold_start_or_enough_tracks():
-    """A warm start, fewer than MIN_POINTS tracks, unseen entries or surface='any': no check is
-    made."""
+    """A warm start, fewer than MIN_POINTS tracks, unseen entries or surface='any' (and,
+    orthographic, more than ORTHOGRAPHIC_MAX_POINTS tracks): no check is made."""
     W, _ = pinhole_sheet('bending', 10, 120)
     assert 'surface' not in GrassmannNRSfM(projection='perspective', surface='any').fit(
         W).report.stages
@@ -70,6 +70,10 @@ def test_no_decision_without_a_cold_start_or_enough_tracks():
         unseen = np.ones((10, 120), bool)
         unseen[0, 0] = False
         assert not surface.applies(params, None, unseen, W)
+    many = np.zeros((20, surface.ORTHOGRAPHIC_MAX_POINTS + 1))
+    assert surface.applies({'surface': 'auto', 'projection': 'perspective'}, None, None, many)
+    assert not surface.applies({'surface': 'auto', 'projection': 'orthographic'}, None, None,
+                               many)
 
 
 def test_an_orthographic_flag_is_a_sheet_and_gets_the_orthographic_sheet_model():

@@ -208,8 +208,8 @@ SOLVER_PARAMS = (
           'through a pinhole, the maximum-depth depths on 10 of its frames keep their edge '
           'lengths (0726; live, checked on the second window and as the sequence doubles) '
           'or, orthographic, the orthographic sheet depths on 20 frames x 200 tracks fit '
-          "their edge sizes (0738; offline only), else 'any'. Complete tracks only for "
-          "'sheet'."),
+          "their edge sizes (0738; offline, up to 5,000 tracks), else 'any'. Complete "
+          "tracks only for 'sheet'."),
     _mode('robust', 'auto', ('auto', 'never', 'cauchy'),
           "'cauchy': tracks whose residual against a low-rank approximation of all tracks, "
           "where their neighbours' agrees, or against the combination of their nearest tracks, "

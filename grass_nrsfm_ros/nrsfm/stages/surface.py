@@ -10,7 +10,7 @@ else by the low-rank chain.
 * Orthographic: the orthographic sheet model (:class:`..sheet_transport.TransportSheetNRSfM`)
   runs on at most CHECK_TRACKS tracks (spread over their order) of ORTHOGRAPHIC_CHECK_FRAMES
   frames; a sheet where its depths fit their edge sizes (relative isometry residual below
-  SHEET_RESIDUAL) (docs/decisions/0738).
+  SHEET_RESIDUAL); no decision above ORTHOGRAPHIC_MAX_POINTS tracks (docs/decisions/0738).
 
 Speaks ``W: (2F, P)`` tracks. Report: stage ``surface``, a note with the measure and the
 decision.
@@ -37,6 +37,9 @@ ORTHOGRAPHIC_CHECK_FRAMES = 20
 #: orthographic: a sheet when the sheet model's isometry residual over its squared edge sizes
 #: is below this
 SHEET_RESIDUAL = 0.015
+#: orthographic: no decision above this many tracks (the sheet model's cost grows faster than
+#: the chain's: 30 x 4,000 in 19 s, 30 x 8,000 in 73 s)
+ORTHOGRAPHIC_MAX_POINTS = 5000
 
 
 @dataclass(frozen=True)
@@ -56,10 +59,11 @@ class Check:
 
 def applies(params, init, visible, W):
     """``surface='auto'``, no warm start, complete tracks ``W: (2F, P)`` with P >=
-    MIN_POINTS."""
+    MIN_POINTS (and, orthographic, P <= ORTHOGRAPHIC_MAX_POINTS)."""
+    most = np.inf if params['projection'] == 'perspective' else ORTHOGRAPHIC_MAX_POINTS
     return (params['surface'] == 'auto' and init is None
             and (visible is None or bool(np.all(visible)))
-            and W.shape[1] >= MIN_POINTS and bool(np.isfinite(W).all()))
+            and MIN_POINTS <= W.shape[1] <= most and bool(np.isfinite(W).all()))
 
 
 def check(W):
