@@ -1,4 +1,4 @@
-"""Orthographic sheets: local-isometry depths with their signs carried from frame to frame.
+"""Orthographic sheets: local-isometry depths fitted frame by frame, carried between frames.
 
 Under orthographic projection a sheet that bends without stretching fixes each point's depth
 gradient up to its sign (:func:`.isometry.local_gradients`; the edge lengths from the image

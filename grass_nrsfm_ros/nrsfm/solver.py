@@ -186,11 +186,11 @@ class GrassmannNRSfM:
         """``surface='sheet'``: a surface that bends without stretching, from its own
         structure instead of the low-rank chain. Pinhole (``projection='perspective'``, the
         normalised tracks): the maximum-depth heuristic (:mod:`.max_depth`), ``S`` in the camera
-        frame projecting onto ``W``. Orthographic: local-isometry depths with their signs
-        carried from frame to frame (:mod:`.sheet_transport`), ``S`` the centred tracks with
-        those depths, ``translation`` the tracks' centroids. ``R`` the identity (the camera
-        frame is the world's), no groups. ``fitted``: the heuristic's result on these tracks
-        already made (the stage 'surface' checked every frame)."""
+        frame projecting onto ``W``. Orthographic: local-isometry depths fitted frame by frame
+        near the shape carried from the frame before (:mod:`.sheet_transport`), ``S`` the
+        centred tracks with those depths, ``translation`` the tracks' centroids. ``R`` the
+        identity (the camera frame is the world's), no groups. ``fitted``: the heuristic's
+        result on these tracks already made (the stage 'surface' checked every frame)."""
         if visible is not None and not np.all(visible) or not np.isfinite(W).all():
             raise InvalidInputError("surface 'sheet' takes complete tracks; some entries are "
                                     'unseen')
