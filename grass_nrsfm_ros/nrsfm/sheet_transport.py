@@ -23,10 +23,11 @@ first-order sign agreement of :func:`.isometry.synchronised_signs` cannot hold. 
    residual ``sum_e (|dz_e| - size_e)^2`` plus the tie), and the lowest fit is kept
    (:func:`frame_depths`); forwards and backwards to the ends (:func:`carry`). No rotation or
    low-rank solve is needed.
-3. Every ``start_step``-th frame starts such a run. Per frame, one run's depths are chosen:
-   the sequence with the lowest summed isometry residual plus the tie between consecutive
-   frames (:func:`consistent_path`, Viterbi), so that a run that went astray where a frame is
-   ambiguous (a fold mirrored about a face-on ruling fits as well) is left there.
+3. Every ``start_step``-th frame (at most MAX_STARTS, spread) starts such a run. Per frame,
+   one run's depths are chosen: the sequence with the lowest summed isometry residual plus the
+   tie between consecutive frames (:func:`consistent_path`, Viterbi), so that a run that went
+   astray where a frame is ambiguous (a fold mirrored about a face-on ruling fits as well) is
+   left there.
 
 ``x, y`` are the centred tracks; depths are centred per frame. Orthographic tracks only (on
 pinhole tracks use :mod:`.max_depth`). Complete tracks only.
@@ -42,12 +43,14 @@ from scipy.sparse.linalg import eigsh
 from sklearn.base import BaseEstimator
 
 from . import isometry
-from .measurement import as_frames, from_frames
+from .measurement import as_frames, from_frames, spread_frames
 
 #: weight of the first-order agreement term relative to the affine-fit residual
 FIRST_ORDER = 1.0
-#: every this many frames is a start frame
+#: every this many frames is a start frame, at most MAX_STARTS of them (spread over the
+#: sequence: the runs cost time and memory in the frames times the starts)
 START_STEP = 2
+MAX_STARTS = 20
 #: weight tying a frame's depths to the carried ones (relative to unit edge weights), in each
 #: frame's fit and between frames in the choice of the path
 CARRY_WEIGHT = 1e-2
@@ -224,6 +227,7 @@ def transport_depths(W, *, k=isometry.NEIGHBOURS, quantile=isometry.LENGTH_QUANT
     candidates, _ = spatial_signs(X, bounded(g), nbr, first)
     integrate = isometry.DepthIntegrator(X, nbr, lengths, CARRY_WEIGHT)
     starts = np.arange(0, F, max(1, int(start_step)))
+    starts = starts[spread_frames(starts.size, MAX_STARTS)]
     runs = np.stack([carry(X, g, nbr, integrate, start, candidates) for start in starts])
     X[:, 2], path = consistent_path(X, runs, integrate)
     residual = float(integrate.residual(X[:, 2]).sum())
