@@ -57,8 +57,10 @@ def whole_sequence(seq):
     result = GrassmannNRSfM().fit(seq.W)
     seconds = time.perf_counter() - started
     _, S_rigid = rigid_factorisation(seq.W)
+    how = ('the orthographic sheet model (surface auto)' if 'sheet_transport' in
+           result.report.stages else f'{result.report.iterations} iterations')
     print(f'whole sequence: e3D {e3d(result.S, seq.S):.4f} (rigid factorisation '
-          f'{e3d(S_rigid, seq.S):.4f}), {result.report.iterations} iterations, {seconds:.1f} s')
+          f'{e3d(S_rigid, seq.S):.4f}), {how}, {seconds:.1f} s')
     return result
 
 
