@@ -76,6 +76,16 @@ def test_no_decision_without_a_cold_start_or_enough_tracks():
                                many)
 
 
+@pytest.mark.parametrize('projection', ['orthographic', 'perspective'])
+def test_malformed_tracks_are_refused_by_the_solve_not_the_check(projection):
+    """Tracks the check cannot read (1-D, text, an odd row count) reach the solver's own
+    validation, which names what is wrong."""
+    from grass_nrsfm_ros.nrsfm import InvalidInputError
+    for W in (np.zeros(120), np.full((4, 60), 'a'), np.zeros((3, 60))):
+        with pytest.raises(InvalidInputError):
+            GrassmannNRSfM(projection=projection).fit(W)
+
+
 def test_an_orthographic_flag_is_a_sheet_and_gets_the_orthographic_sheet_model():
     """The isometric flag, orthographic: the sheet model fits its edge sizes (relative residual
     about 0.006, threshold 0.015), so 'auto' gives exactly surface='sheet', far better than the

@@ -110,17 +110,15 @@ class GrassmannNRSfM:
         params = validate_solver(values)
         if params['surface'] == 'sheet':
             return self._sheet(W, params, visible)
-        if params['projection'] == 'perspective':
-            if visible is not None and not np.all(visible):
-                raise InvalidInputError("projection 'perspective' takes complete tracks; "
-                                        'visible marks some entries unseen')
-            tracks = np.asarray(W, dtype=np.float64)
-            if surface.applies(params, init, visible, tracks):
-                return self._surface_decided(tracks, params, progress, beta_max)
-            return self._perspective(W, init, progress, beta_max)
-        if surface.applies(params, init, visible, np.asarray(W)):
+        pinhole = params['projection'] == 'perspective'
+        if pinhole and visible is not None and not np.all(visible):
+            raise InvalidInputError("projection 'perspective' takes complete tracks; "
+                                    'visible marks some entries unseen')
+        if surface.applies(params, init, visible, W):
             return self._surface_decided(np.asarray(W, dtype=np.float64), params, progress,
                                          beta_max)
+        if pinhole:
+            return self._perspective(W, init, progress, beta_max)
         with one_blas_thread():
             start, timer = time.perf_counter(), Timer()
             problem = Problem.from_tracks(W, init, visible, params['random_state'], filled)

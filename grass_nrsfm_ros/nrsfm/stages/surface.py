@@ -58,10 +58,13 @@ class Check:
 
 
 def applies(params, init, visible, W):
-    """``surface='auto'``, no warm start, complete tracks ``W: (2F, P)`` with P >=
-    MIN_POINTS (and, orthographic, P <= ORTHOGRAPHIC_MAX_POINTS)."""
+    """``surface='auto'``, no warm start, complete numeric tracks ``W: (2F, P)`` with P >=
+    MIN_POINTS (and, orthographic, P <= ORTHOGRAPHIC_MAX_POINTS). Malformed tracks are not
+    checked: the solve that follows says what is wrong with them."""
+    W = np.asarray(W)
     most = np.inf if params['projection'] == 'perspective' else ORTHOGRAPHIC_MAX_POINTS
     return (params['surface'] == 'auto' and init is None
+            and W.ndim == 2 and W.dtype.kind in 'fiu' and W.shape[0] % 2 == 0
             and (visible is None or bool(np.all(visible)))
             and MIN_POINTS <= W.shape[1] <= most and bool(np.isfinite(W).all()))
 
