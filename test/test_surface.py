@@ -99,6 +99,21 @@ def test_an_orthographic_flag_is_a_sheet_and_gets_the_orthographic_sheet_model()
     assert metrics.e3d(auto.S, seq.S, scale=True) < 0.5 * metrics.e3d(chain.S, seq.S, scale=True)
 
 
+def test_a_check_on_every_frame_and_track_is_the_sheets_reconstruction():
+    """Up to 20 frames x 200 tracks the orthographic check solves the whole sheet: that
+    solve is the reconstruction (the same as surface='sheet'), not made twice."""
+    from grass_nrsfm_ros.nrsfm.solver import one_blas_thread
+    seq = synthetic.make_sequence('flag', n_frames=16, n_points=150, seed=0)
+    with one_blas_thread():                          # as the solver runs it
+        decided = surface.check_orthographic(seq.W)
+    assert decided.sheet and decided.fitted is not None
+    auto = GrassmannNRSfM().fit(seq.W)
+    np.testing.assert_array_equal(auto.S, decided.fitted.S)
+    np.testing.assert_array_equal(auto.S, GrassmannNRSfM(surface='sheet').fit(seq.W).S)
+    assert surface.check_orthographic(
+        synthetic.make_sequence('flag', n_frames=30, n_points=200, seed=0).W).fitted is None
+
+
 @pytest.mark.parametrize('kind', ['waving', 'inflating'])
 def test_orthographic_surfaces_that_stretch_get_the_low_rank_chain(kind):
     """Waving and inflating surfaces stretch: the orthographic sheet model cannot fit their

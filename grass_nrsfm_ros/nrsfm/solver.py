@@ -187,22 +187,24 @@ class GrassmannNRSfM:
         frame projecting onto ``W``. Orthographic: local-isometry depths fitted frame by frame
         near the shape carried from the frame before (:mod:`.sheet_transport`), ``S`` the
         centred tracks with those depths, ``translation`` the tracks' centroids. ``R`` the
-        identity (the camera frame is the world's), no groups. ``fitted``: the heuristic's
-        result on these tracks already made (the stage 'surface' checked every frame)."""
+        identity (the camera frame is the world's), no groups. ``fitted``: the sheet model's
+        result on these tracks already made (the stage 'surface' checked every frame and
+        track)."""
         if visible is not None and not np.all(visible) or not np.isfinite(W).all():
             raise InvalidInputError("surface 'sheet' takes complete tracks; some entries are "
                                     'unseen')
         start = time.perf_counter()
         F, P = W.shape[0] // 2, W.shape[1]
+        pinhole = params['projection'] == 'perspective'
         with one_blas_thread():
-            if params['projection'] == 'perspective':
-                result = fitted if fitted is not None else MaxDepthNRSfM().fit(W)
-                report, translation = _max_depth_report(result, P), np.zeros((2 * F, 1))
+            if fitted is None:
+                fitted = (MaxDepthNRSfM() if pinhole else TransportSheetNRSfM()).fit(W)
+            if pinhole:
+                report, translation = _max_depth_report(fitted, P), np.zeros((2 * F, 1))
             else:
-                result = TransportSheetNRSfM().fit(W)
-                report, translation = _transport_report(result), W.mean(axis=1, keepdims=True)
+                report, translation = _transport_report(fitted), W.mean(axis=1, keepdims=True)
         report.seconds = {'total': time.perf_counter() - start}
-        return NRSfMResult(S=result.S, R=np.repeat(np.eye(3)[None], F, axis=0),
+        return NRSfMResult(S=fitted.S, R=np.repeat(np.eye(3)[None], F, axis=0),
                            translation=translation, groups=np.zeros(P, dtype=int),
                            blocks=np.array([0, F]), report=report)
 

@@ -47,8 +47,8 @@ class Check:
     """The sheet measure ``value`` on ``frames`` x ``tracks`` (through a pinhole the edge-length
     variation of the maximum-depth depths on its anchors; orthographic the sheet model's
     relative isometry residual), and whether the tracks are taken for a ``sheet``;
-    ``fitted``: the heuristic's result when the pinhole check ran on every frame (the sheet's
-    reconstruction then), else None."""
+    ``fitted``: the sheet model's result when the check ran on every frame (and,
+    orthographic, every track): the sheet's reconstruction then; else None."""
     value: float
     frames: int
     tracks: int
@@ -81,13 +81,14 @@ def check(W):
 
 def check_orthographic(W):
     """The :class:`Check` of the orthographic tracks ``W: (2F, P)``."""
-    keys = spread_frames(W.shape[0] // 2, ORTHOGRAPHIC_CHECK_FRAMES)
-    tracks = np.unique(np.linspace(0, W.shape[1] - 1, min(CHECK_TRACKS, W.shape[1]))
-                       .round().astype(int))
-    residual = TransportSheetNRSfM().fit(W[frame_rows(keys, 2)][:, tracks]).info[
-        'relative_residual']
+    F, P = W.shape[0] // 2, W.shape[1]
+    keys = spread_frames(F, ORTHOGRAPHIC_CHECK_FRAMES)
+    tracks = spread_frames(P, CHECK_TRACKS)              # evenly over the tracks' order
+    whole = keys.size == F and tracks.size == P
+    result = TransportSheetNRSfM().fit(W if whole else W[frame_rows(keys, 2)][:, tracks])
+    residual = result.info['relative_residual']
     return Check(residual, int(keys.size), int(tracks.size), residual < SHEET_RESIDUAL,
-                 projection='orthographic')
+                 result if whole else None, projection='orthographic')
 
 
 def note(c):
